@@ -1,0 +1,185 @@
+//! The Modbus TCP server: request handling, sessions, connection slots and the
+//! embassy-net listener, shared by every board and by hal-sim.
+
+pub mod handler;
+mod listener;
+mod session;
+mod slots;
+
+use core::cell::RefCell;
+
+use embassy_sync::blocking_mutex::Mutex;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_time::{Duration, Ticker};
+
+pub use handler::{Outcome, Policy};
+pub use listener::{SOCKET_RX_LEN, SOCKET_TX_LEN, listen, listener_task, spawn_listeners};
+pub use session::{Error, SESSION_BUFFER_LEN, serve};
+pub use slots::{SlotId, Slots};
+
+use crate::io::{self, InputPins, OutputPins, Outputs, Robot, Version};
+use crate::map::Image;
+use crate::map::table::reg;
+use crate::modbus::mbap::MAX_ADU_LEN;
+
+/// The Modbus TCP port (Implementation Guide V1.0b, 4.1).
+pub const MODBUS_PORT: u16 = 502;
+
+/// Sessions served at once. Override at build time with the environment
+/// variable `MODBUS_MAX_CONNECTIONS` (1..=32).
+pub const MAX_CONNECTIONS: usize = match option_env!("MODBUS_MAX_CONNECTIONS") {
+    Some(text) => {
+        let n = crate::parse_u16(text) as usize;
+        assert!(n >= 1 && n <= 32, "MODBUS_MAX_CONNECTIONS must be 1..=32");
+        n
+    }
+    None => 8,
+};
+
+/// Sockets (and listener tasks): one more than [`MAX_CONNECTIONS`], so a new
+/// client is accepted even when all sessions are busy, and then the idlest
+/// session is closed to make room.
+pub const SOCKET_POOL: usize = MAX_CONNECTIONS + 1;
+
+/// Default for [`Config::idle_timeout`].
+pub const IDLE_TIMEOUT: Duration = Duration::from_secs(60);
+/// Default for [`Config::frame_timeout`].
+pub const FRAME_TIMEOUT: Duration = Duration::from_secs(2);
+/// How often the source-backed points are refreshed and re-asserted.
+pub const REFRESH_PERIOD: Duration = Duration::from_millis(100);
+
+/// How the server runs. Built at start-up by each binary.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Config {
+    /// TCP port to listen on.
+    pub port: u16,
+    /// Sessions served at once (1..=[`MAX_CONNECTIONS`]).
+    pub max_connections: usize,
+    /// Unit id filtering and write policy.
+    pub policy: Policy,
+    /// A session with no complete request for this long is closed (`None`: never).
+    pub idle_timeout: Option<Duration>,
+    /// A frame that has started must be complete within this time.
+    pub frame_timeout: Duration,
+}
+
+impl Config {
+    /// Port 502, 8 connections, every unit id, `seed` writes, 60 s idle, 2 s per frame.
+    pub const DEFAULT: Self = Self {
+        port: MODBUS_PORT,
+        max_connections: MAX_CONNECTIONS,
+        policy: Policy { unit_id: None, write_policy: crate::map::WritePolicy::Seed },
+        idle_timeout: Some(IDLE_TIMEOUT),
+        frame_timeout: FRAME_TIMEOUT,
+    };
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// Everything the sessions and tasks share: the process image behind a
+/// blocking mutex (held while one request is applied, never across an
+/// `.await`), the board's outputs, the configuration and the session slots.
+pub struct Shared<'a> {
+    image: Mutex<CriticalSectionRawMutex, RefCell<Image>>,
+    outputs: &'a dyn OutputPins,
+    config: Config,
+    version: Version,
+    slots: Slots,
+}
+
+impl core::fmt::Debug for Shared<'_> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Shared").field("config", &self.config).field("version", &self.version).finish_non_exhaustive()
+    }
+}
+
+impl<'a> Shared<'a> {
+    /// A fresh image with `version` in registers 256-258 and the robot NOT READY.
+    pub fn new(config: Config, version: Version, outputs: &'a dyn OutputPins) -> Self {
+        let mut image = Image::new();
+        version.apply(&mut image);
+        let config = Config { max_connections: config.max_connections.clamp(1, MAX_CONNECTIONS), ..config };
+        Self { image: Mutex::new(RefCell::new(image)), outputs, config, version, slots: Slots::new() }
+    }
+
+    /// The configuration in force.
+    pub fn config(&self) -> &Config {
+        &self.config
+    }
+
+    /// The session slots.
+    pub fn slots(&self) -> &Slots {
+        &self.slots
+    }
+
+    /// Answers one request frame into `reply`, and drives the outputs at once
+    /// if the request changed them.
+    pub fn respond(&self, frame: &[u8], reply: &mut [u8; MAX_ADU_LEN]) -> Outcome {
+        self.image.lock(|image| {
+            let mut image = image.borrow_mut();
+            let outcome = handler::respond(frame, reply, &mut image, &self.config.policy);
+            if let Outcome::Reply { written, .. } = outcome
+                && written.outputs
+            {
+                self.outputs.drive(&Outputs::from_image(&image));
+            }
+            outcome
+        })
+    }
+
+    /// Reads the image.
+    pub fn read<R>(&self, f: impl FnOnce(&Image) -> R) -> R {
+        self.image.lock(|image| f(&image.borrow()))
+    }
+
+    /// Changes the image from a source (an input edge, a robot event): the
+    /// "event" update class. Bypasses the write policy.
+    pub fn update<R>(&self, f: impl FnOnce(&mut Image) -> R) -> R {
+        self.image.lock(|image| f(&mut image.borrow_mut()))
+    }
+
+    /// Drives the outputs from the image (at start-up, or after a fault).
+    pub fn drive_outputs(&self) {
+        self.image.lock(|image| self.outputs.drive(&Outputs::from_image(&image.borrow())));
+    }
+
+    /// One refresh: samples every source and re-asserts every source-backed
+    /// point (so a `seed`-policy write to a read-only point lasts at most one period).
+    pub fn refresh(&self, inputs: &mut impl InputPins, robot: &mut impl Robot) {
+        let types = self.read(io::analog_input_types);
+        let digital = inputs.digital();
+        let tool = inputs.tool();
+        let analog = [0, 1].map(|channel| {
+            let kind = types.get(channel).copied().unwrap_or_default();
+            inputs.analog(channel, kind).min(kind.max())
+        });
+        let status = robot.status();
+        let telemetry = robot.telemetry();
+        self.update(|image| {
+            image.set_register(reg::DIGITAL_INPUTS, digital);
+            image.set_register(reg::TOOL_INPUTS, u16::from(tool));
+            let [ai1, ai2] = analog;
+            image.set_register(reg::ANALOG_INPUT_1, ai1);
+            image.set_register(reg::ANALOG_INPUT_2, ai2);
+            self.version.apply(image);
+            status.apply(image);
+            telemetry.apply(image);
+        });
+    }
+}
+
+/// The 100 ms task's body: refresh, then wait for the next period. Each
+/// binary wraps it in a task with its own pins and robot.
+pub async fn refresh_loop(shared: &Shared<'_>, inputs: &mut impl InputPins, robot: &mut impl Robot) -> ! {
+    let mut ticker = Ticker::every(REFRESH_PERIOD);
+    loop {
+        shared.refresh(inputs, robot);
+        ticker.next().await;
+    }
+}
+

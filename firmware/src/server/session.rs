@@ -1,0 +1,144 @@
+//! One client connection: frames in, replies out, over any
+//! `embedded-io-async` stream (an embassy-net socket, or a test pipe).
+
+use core::fmt;
+use core::future::Future;
+
+use embassy_futures::select::{Either, select};
+use embassy_time::{Instant, with_deadline};
+use embedded_io_async::{Read, Write};
+
+use super::{Outcome, Shared, SlotId};
+use crate::modbus::mbap::{self, MAX_ADU_LEN};
+
+/// Receive buffer of a session: one whole ADU always fits behind a partial one
+/// once the consumed bytes are dropped.
+pub const SESSION_BUFFER_LEN: usize = MAX_ADU_LEN;
+
+/// Why a session ended (other than the client closing it cleanly).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Error<E> {
+    /// The transport failed (reset, aborted).
+    Transport(E),
+    /// A length field outside 2..=254: the stream is lost.
+    BadLength(u16),
+    /// No complete request for the configured idle time.
+    IdleTimeout,
+    /// A frame started and did not complete in time.
+    FrameTimeout,
+    /// Closed to make room for a new client.
+    Evicted,
+    /// The transport accepted no bytes of a reply.
+    WriteZero,
+}
+
+impl<E: fmt::Debug> fmt::Display for Error<E> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Transport(e) => write!(f, "transport error: {e:?}"),
+            Self::BadLength(len) => write!(f, "bad MBAP length {len}: stream lost"),
+            Self::IdleTimeout => f.write_str("idle timeout"),
+            Self::FrameTimeout => f.write_str("frame not completed in time"),
+            Self::Evicted => f.write_str("closed to make room for a new client"),
+            Self::WriteZero => f.write_str("transport accepted no bytes"),
+        }
+    }
+}
+
+impl<E: fmt::Debug> core::error::Error for Error<E> {}
+
+/// Serves one connection until the client closes it (`Ok`) or it must end (`Err`).
+///
+/// Every whole frame in the buffer is answered in order before reading more,
+/// so pipelined requests each get a reply; a frame split across reads waits
+/// for its remaining bytes, at most `frame_timeout`.
+pub async fn serve<S: Read + Write>(stream: &mut S, shared: &Shared<'_>, slot: SlotId) -> Result<(), Error<S::Error>> {
+    let config = shared.config();
+    let mut rx = [0u8; SESSION_BUFFER_LEN];
+    let mut reply = [0u8; MAX_ADU_LEN];
+    let mut filled = 0;
+    let mut last_request = Instant::now();
+    let mut frame_started = None;
+
+    loop {
+        let mut consumed = 0;
+        loop {
+            let pending = rx.get(consumed..filled).unwrap_or(&[]);
+            let len = match mbap::next_frame_len(pending) {
+                Ok(Some(len)) => len,
+                Ok(None) => break,
+                Err(mbap::Error::BadLength(len)) => return Err(Error::BadLength(len)),
+                Err(mbap::Error::Truncated) => break,
+            };
+            let frame = pending.get(..len).unwrap_or(&[]);
+            match shared.respond(frame, &mut reply) {
+                Outcome::Reply { len, exception, .. } => {
+                    if let Some(exception) = exception {
+                        debug!("slot {}: exception {:?}", slot, exception);
+                    }
+                    let out = reply.get(..len).unwrap_or(&[]);
+                    let deadline = config.idle_timeout.map(|t| Instant::now() + t);
+                    guarded(write_all(stream, out), deadline, shared, slot).await??;
+                }
+                Outcome::Discard { protocol_id } => warn!("slot {}: discarded protocol id {}", slot, protocol_id),
+            }
+            consumed += len;
+            last_request = Instant::now();
+            shared.slots().touch(slot, last_request);
+        }
+        if consumed > 0 {
+            rx.copy_within(consumed..filled, 0);
+            filled -= consumed;
+            frame_started = None;
+        }
+        if filled > 0 && frame_started.is_none() {
+            frame_started = Some(Instant::now());
+        }
+
+        let deadline = match frame_started {
+            Some(started) => Some(started + config.frame_timeout),
+            None => config.idle_timeout.map(|t| last_request + t),
+        };
+        let free = rx.get_mut(filled..).unwrap_or(&mut []);
+        match guarded(stream.read(free), deadline, shared, slot).await {
+            Ok(Ok(0)) => return Ok(()),
+            Ok(Ok(n)) => filled += n,
+            Ok(Err(e)) => return Err(Error::Transport(e)),
+            Err(Error::IdleTimeout) if frame_started.is_some() => return Err(Error::FrameTimeout),
+            Err(e) => return Err(e),
+        }
+    }
+}
+
+/// Runs `io` until `deadline` or until the slot is evicted.
+async fn guarded<T, E, F: Future<Output = T>>(
+    io: F,
+    deadline: Option<Instant>,
+    shared: &Shared<'_>,
+    slot: SlotId,
+) -> Result<T, Error<E>> {
+    let timed = async {
+        match deadline {
+            Some(at) => with_deadline(at, io).await.map_err(|_| Error::IdleTimeout),
+            None => Ok(io.await),
+        }
+    };
+    match select(timed, shared.slots().evicted(slot)).await {
+        Either::First(result) => result,
+        Either::Second(()) => Err(Error::Evicted),
+    }
+}
+
+/// `write_all` that reports a zero-length write instead of panicking.
+async fn write_all<S: Write>(stream: &mut S, mut bytes: &[u8]) -> Result<(), Error<S::Error>> {
+    while !bytes.is_empty() {
+        match stream.write(bytes).await {
+            Ok(0) => return Err(Error::WriteZero),
+            Ok(n) => bytes = bytes.get(n..).unwrap_or(&[]),
+            Err(e) => return Err(Error::Transport(e)),
+        }
+    }
+    Ok(())
+}
+

@@ -1,0 +1,146 @@
+//! Session slots: who is connected, how long each has been idle, and the
+//! eviction of the idlest session when a new client needs room
+//! (Implementation Guide V1.0b, 4.2.1, connection management).
+
+use core::cell::RefCell;
+
+use embassy_sync::blocking_mutex::Mutex;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::signal::Signal;
+use embassy_time::Instant;
+
+use super::SOCKET_POOL;
+
+/// Which slot (and listener task) a session runs in: `0..SOCKET_POOL`.
+pub type SlotId = usize;
+
+/// One entry per socket: `Some(last request)` while a session is open.
+pub struct Slots {
+    active: Mutex<CriticalSectionRawMutex, RefCell<[Option<Instant>; SOCKET_POOL]>>,
+    evict: [Signal<CriticalSectionRawMutex, ()>; SOCKET_POOL],
+}
+
+impl core::fmt::Debug for Slots {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Slots").field("open", &self.open_count()).finish()
+    }
+}
+
+impl Default for Slots {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Slots {
+    pub const fn new() -> Self {
+        Self {
+            active: Mutex::new(RefCell::new([None; SOCKET_POOL])),
+            evict: [const { Signal::new() }; SOCKET_POOL],
+        }
+    }
+
+    /// Opens slot `id` for a new session. If that makes more than `max`
+    /// sessions, the one idle the longest is told to close; its id is returned.
+    pub fn open(&self, id: SlotId, max: usize, now: Instant) -> Option<SlotId> {
+        if let Some(signal) = self.evict.get(id) {
+            signal.reset();
+        }
+        let victim = self.active.lock(|active| {
+            let mut active = active.borrow_mut();
+            let slot = active.get_mut(id)?;
+            *slot = Some(now);
+            let open = active.iter().filter(|s| s.is_some()).count();
+            if open <= max {
+                return None;
+            }
+            let idlest = active
+                .iter()
+                .enumerate()
+                .filter(|&(other, _)| other != id)
+                .filter_map(|(other, last)| last.map(|last| (last, other)))
+                .min()?;
+            Some(idlest.1)
+        });
+        if let Some(signal) = victim.and_then(|v| self.evict.get(v)) {
+            signal.signal(());
+        }
+        victim
+    }
+
+    /// Records a request on slot `id`.
+    pub fn touch(&self, id: SlotId, now: Instant) {
+        self.active.lock(|active| {
+            if let Some(Some(last)) = active.borrow_mut().get_mut(id) {
+                *last = now;
+            }
+        });
+    }
+
+    /// Frees slot `id`.
+    pub fn close(&self, id: SlotId) {
+        self.active.lock(|active| {
+            if let Some(slot) = active.borrow_mut().get_mut(id) {
+                *slot = None;
+            }
+        });
+    }
+
+    /// Sessions open now.
+    pub fn open_count(&self) -> usize {
+        self.active.lock(|active| active.borrow().iter().filter(|s| s.is_some()).count())
+    }
+
+    /// Resolves when slot `id`'s session must close to make room.
+    pub async fn evicted(&self, id: SlotId) {
+        match self.evict.get(id) {
+            Some(signal) => signal.wait().await,
+            None => core::future::pending().await,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use embassy_time::Duration;
+
+    fn at(ms: u64) -> Instant {
+        Instant::from_millis(ms)
+    }
+
+    #[test]
+    fn the_idlest_session_makes_room() {
+        let slots = Slots::new();
+        for id in 0..8 {
+            assert_eq!(slots.open(id, 8, at(100 + id as u64)), None);
+        }
+        slots.touch(0, at(1_000)); // slot 1 is now the idlest
+        assert_eq!(slots.open(8, 8, at(2_000)), Some(1));
+        assert!(slots.evict[1].signaled());
+        assert!(!slots.evict[0].signaled());
+        slots.close(1);
+        assert_eq!(slots.open_count(), 8);
+    }
+
+    #[test]
+    fn a_reused_slot_forgets_an_old_eviction() {
+        let slots = Slots::new();
+        slots.open(0, 1, at(0));
+        assert_eq!(slots.open(1, 1, at(10)), Some(0));
+        slots.close(0);
+        assert_eq!(slots.open(0, 1, at(20)), Some(1));
+        assert!(!slots.evict[0].signaled(), "slot 0's new session is not evicted");
+        assert!(slots.evict[1].signaled());
+        let _ = Duration::from_millis(0);
+    }
+
+    #[test]
+    fn out_of_range_ids_are_ignored() {
+        let slots = Slots::new();
+        assert_eq!(slots.open(SOCKET_POOL, 1, at(0)), None);
+        slots.touch(SOCKET_POOL, at(0));
+        slots.close(SOCKET_POOL);
+        assert_eq!(slots.open_count(), 0);
+    }
+}
