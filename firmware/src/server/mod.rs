@@ -17,7 +17,7 @@ pub use listener::{SOCKET_RX_LEN, SOCKET_TX_LEN, listen, listener_task, spawn_li
 pub use session::{Error, SESSION_BUFFER_LEN, serve};
 pub use slots::{SlotId, Slots};
 
-use crate::io::{self, InputPins, OutputPins, Outputs, Robot, Version};
+use crate::io::{self, InputPins, OutputPins, Outputs, Robot, RobotStatus, Version};
 use crate::map::Image;
 use crate::map::table::reg;
 use crate::modbus::mbap::MAX_ADU_LEN;
@@ -47,6 +47,9 @@ pub const IDLE_TIMEOUT: Duration = Duration::from_secs(60);
 pub const FRAME_TIMEOUT: Duration = Duration::from_secs(2);
 /// How often the source-backed points are refreshed and re-asserted.
 pub const REFRESH_PERIOD: Duration = Duration::from_millis(100);
+
+/// The registers of analog inputs 1 and 2.
+const ANALOG_INPUTS: [u16; io::ANALOG_CHANNELS] = [reg::ANALOG_INPUT_1, reg::ANALOG_INPUT_2];
 
 /// How the server runs. Built at start-up by each binary.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -143,6 +146,37 @@ impl<'a> Shared<'a> {
         self.image.lock(|image| f(&mut image.borrow_mut()))
     }
 
+    /// An edge on the ControlBox digital inputs (bit n = input n + 1): an event.
+    pub fn set_digital_inputs(&self, mask: u16) {
+        self.update(|image| image.set_register(reg::DIGITAL_INPUTS, mask));
+    }
+
+    /// An edge on the tool digital inputs (bit n = input n + 1): an event.
+    pub fn set_tool_inputs(&self, mask: u8) {
+        self.update(|image| image.set_register(reg::TOOL_INPUTS, u16::from(mask)));
+    }
+
+    /// A new reading of analog input `channel` (0 or 1), in thousandths of the
+    /// unit its type register selects; clamped to that type's range.
+    pub fn set_analog_input(&self, channel: usize, value: u16) {
+        self.update(|image| {
+            let types = io::analog_input_types(image);
+            if let (Some(kind), Some(&address)) = (types.get(channel), ANALOG_INPUTS.get(channel)) {
+                image.set_register(address, value.min(kind.max()));
+            }
+        });
+    }
+
+    /// A change of the robot's state or flags: an event.
+    pub fn set_robot_status(&self, status: &RobotStatus) {
+        self.update(|image| status.apply(image));
+    }
+
+    /// What the master has the outputs set to now.
+    pub fn outputs(&self) -> Outputs {
+        self.read(Outputs::from_image)
+    }
+
     /// Drives the outputs from the image (at start-up, or after a fault).
     pub fn drive_outputs(&self) {
         self.image.lock(|image| self.outputs.drive(&Outputs::from_image(&image.borrow())));
@@ -163,9 +197,9 @@ impl<'a> Shared<'a> {
         self.update(|image| {
             image.set_register(reg::DIGITAL_INPUTS, digital);
             image.set_register(reg::TOOL_INPUTS, u16::from(tool));
-            let [ai1, ai2] = analog;
-            image.set_register(reg::ANALOG_INPUT_1, ai1);
-            image.set_register(reg::ANALOG_INPUT_2, ai2);
+            for (address, value) in ANALOG_INPUTS.into_iter().zip(analog) {
+                image.set_register(address, value);
+            }
             self.version.apply(image);
             status.apply(image);
             telemetry.apply(image);
