@@ -18,6 +18,8 @@ pub mod io;
 pub mod map;
 pub mod modbus;
 pub mod server;
+#[cfg(feature = "sim-robot")]
+pub mod sim_robot;
 
 /// This firmware's version, reported in registers 256-258.
 pub const VERSION: io::Version = io::Version {
