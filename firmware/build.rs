@@ -24,6 +24,9 @@ fn main() {
         println!("cargo:warning=cannot copy {}: {e}", memory.display());
     }
     println!("cargo:rustc-link-search={}", out.display());
+    // The linker runs in the workspace root and finds the top-level memory.x
+    // (the NUCLEO's) before the search path: point `INCLUDE memory.x` at our copy.
+    println!("cargo:rustc-link-arg-bins=--remap-inputs=memory.x={}", out.join("memory.x").display());
     println!("cargo:rustc-link-arg-bins=--nmagic");
     println!("cargo:rustc-link-arg-bins=-Tlink.x");
     println!("cargo:rustc-link-arg-bins=-Tdefmt.x");
