@@ -10,9 +10,11 @@ fn main() {
         return;
     }
     let manifest = PathBuf::from(env::var_os("CARGO_MANIFEST_DIR").unwrap_or_default());
-    // One memory map per board: the NUCLEO's is the workspace's memory.x.
+    // One memory map per board, in its board folder. None may sit in the
+    // workspace root: the linker runs there and would find it first, and
+    // flip-link must see the same memory.x as the linker.
     let memory = if env::var_os("CARGO_FEATURE_NUCLEO_F429ZI").is_some() {
-        manifest.join("../memory.x")
+        manifest.join("src/board/nucleo_f429zi/memory.x")
     } else if env::var_os("CARGO_FEATURE_MPS2_AN386").is_some() {
         manifest.join("src/board/mps2_an386/memory.x")
     } else {
@@ -24,9 +26,6 @@ fn main() {
         println!("cargo:warning=cannot copy {}: {e}", memory.display());
     }
     println!("cargo:rustc-link-search={}", out.display());
-    // The linker runs in the workspace root and finds the top-level memory.x
-    // (the NUCLEO's) before the search path: point `INCLUDE memory.x` at our copy.
-    println!("cargo:rustc-link-arg-bins=--remap-inputs=memory.x={}", out.join("memory.x").display());
     println!("cargo:rustc-link-arg-bins=--nmagic");
     println!("cargo:rustc-link-arg-bins=-Tlink.x");
     println!("cargo:rustc-link-arg-bins=-Tdefmt.x");
