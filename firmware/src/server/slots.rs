@@ -86,6 +86,19 @@ impl Slots {
         });
     }
 
+    /// Tells every open session to close (the board lost its link).
+    pub fn evict_all(&self) {
+        let open = self.active.lock(|active| active.borrow().map(|slot| slot.is_some()));
+        for (signal, _) in self.evict.iter().zip(open).filter(|&(_, open)| open) {
+            signal.signal(());
+        }
+    }
+
+    /// When the newest request (or connection) on any open session arrived.
+    pub fn last_activity(&self) -> Option<Instant> {
+        self.active.lock(|active| active.borrow().iter().flatten().max().copied())
+    }
+
     /// Sessions open now.
     pub fn open_count(&self) -> usize {
         self.active.lock(|active| active.borrow().iter().filter(|s| s.is_some()).count())
@@ -133,6 +146,22 @@ mod tests {
         assert!(!slots.evict[0].signaled(), "slot 0's new session is not evicted");
         assert!(slots.evict[1].signaled());
         let _ = Duration::from_millis(0);
+    }
+
+    #[test]
+    fn evict_all_reaches_open_sessions_only() {
+        let slots = Slots::new();
+        assert_eq!(slots.last_activity(), None);
+        slots.open(0, 8, at(5));
+        slots.open(2, 8, at(7));
+        slots.touch(0, at(9));
+        assert_eq!(slots.last_activity(), Some(at(9)));
+        slots.evict_all();
+        assert!(slots.evict[0].signaled());
+        assert!(!slots.evict[1].signaled(), "a listening slot has no session to close");
+        assert!(slots.evict[2].signaled());
+        slots.close(0);
+        assert_eq!(slots.last_activity(), Some(at(7)));
     }
 
     #[test]
