@@ -6,3 +6,7 @@
 pub mod mps2_an386;
 #[cfg(feature = "nucleo-f429zi")]
 pub mod nucleo_f429zi;
+// Host tests build the NUCLEO's settings and scaling on their own (no HAL there).
+#[cfg(all(test, not(feature = "nucleo-f429zi")))]
+#[path = "nucleo_f429zi/settings.rs"]
+mod nucleo_f429zi_settings;
