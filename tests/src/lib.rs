@@ -2,3 +2,4 @@
 //! under test.
 
 pub mod netns;
+pub mod qemu;

@@ -1,0 +1,505 @@
+//! The real firmware image (mps2-an386) in QEMU: boot, reach, inspect, stop.
+//!
+//! ```no_run
+//! use system_tests::qemu::Qemu;
+//! let qemu = Qemu::slirp();
+//! qemu.run(|| async {
+//!     let mut ctx = qemu.connect().await;
+//!     // ... tokio-modbus requests ...
+//! });
+//! assert_eq!(qemu.read_word(system_tests::qemu::LED0) & 1, 0);
+//! qemu.finish(); // fails on a panic, a fault or an error in the firmware's log
+//! ```
+//!
+//! - [`Qemu::slirp`]: user networking, a free port of 127.0.0.1 forwarded to
+//!   the firmware's port 502 (slirp's DHCP gives the firmware 10.0.2.15).
+//! - [`Qemu::tap`]: on the TAP of a new [`Namespace`] (no DHCP there: the
+//!   firmware falls back to 198.18.0.2/24 after 3 s).
+//!
+//! QEMU always runs under `timeout`, writes its output (the firmware's defmt
+//! log, over semihosting) to a file rather than a pipe that could stall the
+//! firmware, and has a monitor on a unix socket ([`Qemu::read_word`] reads
+//! guest memory through it). [`Qemu::log`] decodes the log with `defmt-print`.
+
+use std::fmt::Write as _;
+use std::io::{BufRead as _, Read as _, Write as _};
+use std::net::{Ipv4Addr, SocketAddr, TcpListener};
+use std::os::unix::net::UnixStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::{Mutex, OnceLock};
+use std::time::{Duration, Instant, SystemTime};
+
+use tokio_modbus::client::{Context, Reader as _};
+
+use crate::netns::{DEVICE_IP, Namespace, TAP};
+
+/// Overrides the image under test.
+pub const ELF_ENV: &str = "FIRMWARE_MPS2_ELF";
+/// How the image is built (the README's test command runs it first).
+pub const BUILD_COMMAND: &str =
+    "cargo build -p firmware --release --target thumbv7em-none-eabihf --features mps2-an386 --bin mps2-an386";
+/// `timeout` ends QEMU after this long whatever happens to the test.
+pub const QEMU_TIMEOUT: Duration = Duration::from_secs(300);
+/// Boot, link and address (DHCP, or its 3 s fallback) within this time.
+pub const READY_TIMEOUT: Duration = Duration::from_secs(30);
+/// The FPGA IO block's LED0 register: bit n is user LED n (digital output n + 1).
+pub const LED0: u32 = 0x4002_8000;
+/// The firmware's Modbus port.
+pub const MODBUS_PORT: u16 = 502;
+/// Registers 256-258: the firmware version.
+pub const VERSION_REGISTER: u16 = 256;
+/// A QEMU monitor command must answer within this time.
+const MONITOR_TIMEOUT: Duration = Duration::from_secs(10);
+/// How long `quit` may take.
+const QUIT_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// The workspace's root directory.
+pub fn workspace() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// The image under test: `FIRMWARE_MPS2_ELF`, or the release build of this
+/// workspace, which must exist and be newer than every source it was built
+/// from (as listed in cargo's dep-info file next to it).
+pub fn image() -> PathBuf {
+    if let Some(path) = std::env::var_os(ELF_ENV) {
+        let path = PathBuf::from(path);
+        assert!(path.is_file(), "{ELF_ENV}={} is not a file", path.display());
+        return path;
+    }
+    let target = match std::env::var_os("CARGO_TARGET_DIR") {
+        Some(dir) => PathBuf::from(dir),
+        None => workspace().join("target"),
+    };
+    let path = target.join("thumbv7em-none-eabihf/release/mps2-an386");
+    let built = modified(&path).unwrap_or_else(|| {
+        panic!("the mps2-an386 image is not built ({} is missing): run `{BUILD_COMMAND}` first, or set {ELF_ENV}", path.display())
+    });
+    let dep_info = std::fs::read_to_string(path.with_extension("d")).unwrap_or_default();
+    let manifest = workspace().join("firmware/Cargo.toml");
+    for source in dep_info_sources(&dep_info).into_iter().chain([manifest]) {
+        let changed = modified(&source).is_some_and(|time| time > built);
+        assert!(
+            !changed,
+            "the mps2-an386 image is older than {}: run `{BUILD_COMMAND}` again, or set {ELF_ENV}",
+            source.display()
+        );
+    }
+    path
+}
+
+fn modified(path: &Path) -> Option<SystemTime> {
+    std::fs::metadata(path).and_then(|m| m.modified()).ok()
+}
+
+/// The sources a cargo dep-info file (`target: source source ...`) lists.
+fn dep_info_sources(dep_info: &str) -> Vec<PathBuf> {
+    let Some((_, sources)) = dep_info.lines().next().and_then(|line| line.split_once(": ")) else {
+        return Vec::new();
+    };
+    let mut paths = Vec::new();
+    let mut current = String::new();
+    let mut words = sources.split(' ').peekable();
+    while let Some(word) = words.next() {
+        match word.strip_suffix('\\') {
+            // An escaped space: the path goes on.
+            Some(part) if words.peek().is_some() => {
+                current.push_str(part);
+                current.push(' ');
+            }
+            _ => {
+                current.push_str(word);
+                if !current.is_empty() {
+                    paths.push(PathBuf::from(std::mem::take(&mut current)));
+                }
+            }
+        }
+    }
+    paths
+}
+
+/// The firmware crate's version, as the image reports it in registers 256-258.
+pub fn firmware_version() -> [u16; 3] {
+    let manifest = std::fs::read_to_string(workspace().join("firmware/Cargo.toml")).expect("firmware/Cargo.toml");
+    let line = manifest.lines().find(|l| l.starts_with("version = ")).expect("a version line");
+    let version = line.trim_start_matches("version = ").trim_matches('"');
+    let parts: Vec<u16> = version.split('.').map(|p| p.parse().expect("a numeric version")).collect();
+    [parts[0], parts[1], parts[2]]
+}
+
+/// `defmt-print`, installed with `cargo install defmt-print` if it is missing.
+pub fn defmt_print() -> &'static Path {
+    static PATH: OnceLock<PathBuf> = OnceLock::new();
+    PATH.get_or_init(|| {
+        let cargo_bin = match std::env::var_os("CARGO_HOME") {
+            Some(home) => PathBuf::from(home).join("bin"),
+            None => PathBuf::from(std::env::var_os("HOME").unwrap_or_default()).join(".cargo/bin"),
+        };
+        let found = |dirs: &mut dyn Iterator<Item = PathBuf>| dirs.map(|d| d.join("defmt-print")).find(|p| p.is_file());
+        let path_dirs = std::env::var_os("PATH").map(|p| std::env::split_paths(&p).collect::<Vec<_>>()).unwrap_or_default();
+        if let Some(path) = found(&mut path_dirs.into_iter().chain([cargo_bin.clone()])) {
+            return path;
+        }
+        eprintln!("defmt-print is missing: installing it with `cargo install defmt-print` (about a minute)");
+        let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+        let status = Command::new(cargo).args(["install", "--locked", "defmt-print"]).status().expect("cargo runs");
+        assert!(status.success(), "`cargo install defmt-print` failed");
+        found(&mut std::iter::once(cargo_bin)).expect("defmt-print in cargo's bin directory after installing it")
+    })
+}
+
+/// Lines of a decoded firmware log that fail a test: errors, panics, faults.
+pub fn log_failures(decoded: &str) -> Vec<&str> {
+    decoded
+        .lines()
+        .filter(|line| {
+            line.contains(" ERROR ")
+                || line.contains("panicked")
+                || line.contains("HardFault")
+                || line.contains("unexpected exception")
+        })
+        .collect()
+}
+
+/// How QEMU reaches the firmware's network.
+enum Network<'a> {
+    Slirp { port: u16 },
+    Tap(&'a Namespace),
+}
+
+/// A running QEMU with the image; stopped on drop (use [`Qemu::finish`] to
+/// also check the firmware's log).
+#[derive(Debug)]
+pub struct Qemu {
+    child: Mutex<Child>,
+    dir: PathBuf,
+    elf: PathBuf,
+    addr: SocketAddr,
+    ns: Option<Namespace>,
+}
+
+impl Qemu {
+    /// Boots the image with slirp and a free port of 127.0.0.1 forwarded to 502.
+    pub fn slirp() -> Self {
+        let mut last_error = String::new();
+        for _ in 0..5 {
+            let port = free_port();
+            match Self::boot(Network::Slirp { port }, SocketAddr::from((Ipv4Addr::LOCALHOST, port))) {
+                Ok(qemu) => return qemu,
+                // Another program took the port between our look and QEMU's bind.
+                Err(error) if error.contains("host forwarding") => last_error = error,
+                Err(error) => panic!("QEMU did not start:\n{error}"),
+            }
+        }
+        panic!("QEMU could not forward a free port:\n{last_error}")
+    }
+
+    /// Boots the image on the TAP of a new network namespace; the firmware is
+    /// at 198.18.0.2 once its DHCP attempt has timed out.
+    pub fn tap() -> Self {
+        let ns = Namespace::new().expect("a network namespace with a TAP");
+        let ip: Ipv4Addr = DEVICE_IP.parse().expect("DEVICE_IP is an IPv4 address");
+        let mut qemu = Self::boot(Network::Tap(&ns), SocketAddr::from((ip, MODBUS_PORT)))
+            .unwrap_or_else(|error| panic!("QEMU did not start:\n{error}"));
+        qemu.ns = Some(ns);
+        qemu
+    }
+
+    fn boot(network: Network<'_>, addr: SocketAddr) -> Result<Self, String> {
+        static NEXT: AtomicU32 = AtomicU32::new(0);
+        let elf = image();
+        let dir = std::env::temp_dir().join(format!("mbqemu-{}-{}", std::process::id(), NEXT.fetch_add(1, Ordering::Relaxed)));
+        std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        let nic = match network {
+            Network::Slirp { port } => {
+                format!("user,model=lan9118,restrict=on,hostfwd=tcp:127.0.0.1:{port}-:{MODBUS_PORT}")
+            }
+            Network::Tap(_) => format!("tap,ifname={TAP},script=no,downscript=no,model=lan9118"),
+        };
+        let mut command = match network {
+            Network::Slirp { .. } => Command::new("timeout"),
+            Network::Tap(ns) => ns.command("timeout"),
+        };
+        let monitor = dir.join("monitor.sock");
+        command
+            .args(["-k", "5", &QEMU_TIMEOUT.as_secs().to_string()])
+            .args(qemu_args(&elf, &nic))
+            .arg("-monitor")
+            .arg(format!("unix:{},server=on,wait=off", monitor.display()))
+            .stdin(Stdio::null())
+            .stdout(file(&dir.join("firmware.log"))?)
+            .stderr(file(&dir.join("qemu.stderr"))?);
+        let child = command.spawn().map_err(|e| format!("`timeout qemu-system-arm` does not start: {e}"))?;
+        let qemu = Self { child: Mutex::new(child), dir, elf, addr, ns: None };
+        // The monitor answers once QEMU has finished setting up (slirp's
+        // forwarding included); if setting up failed, QEMU has exited.
+        let deadline = Instant::now() + MONITOR_TIMEOUT;
+        loop {
+            if let Some(status) = qemu.exit_status() {
+                return Err(format!("QEMU exited ({status}) at start-up:\n{}", qemu.stderr()));
+            }
+            if qemu.try_monitor("info version").is_ok() {
+                return Ok(qemu);
+            }
+            if Instant::now() > deadline {
+                return Err(format!("QEMU's monitor never answered:\n{}", qemu.stderr()));
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// Where the firmware's Modbus server is reached from the test.
+    pub fn addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// The image QEMU runs.
+    pub fn elf(&self) -> &Path {
+        &self.elf
+    }
+
+    /// QEMU's exit status, if it has exited.
+    pub fn exit_status(&self) -> Option<ExitStatus> {
+        self.child.lock().expect("the child lock").try_wait().ok().flatten()
+    }
+
+    /// What QEMU printed on stderr.
+    pub fn stderr(&self) -> String {
+        std::fs::read_to_string(self.dir.join("qemu.stderr")).unwrap_or_default()
+    }
+
+    /// The firmware's log so far, decoded.
+    pub fn log(&self) -> String {
+        let Ok(raw) = std::fs::File::open(self.dir.join("firmware.log")) else {
+            return String::new();
+        };
+        let output = Command::new(defmt_print())
+            .arg("-e")
+            .arg(&self.elf)
+            .stdin(raw)
+            .output()
+            .expect("defmt-print runs");
+        let mut text = String::from_utf8_lossy(&output.stdout).into_owned();
+        if !output.stderr.is_empty() {
+            let _ = write!(text, "{}", String::from_utf8_lossy(&output.stderr));
+        }
+        text
+    }
+
+    /// Runs a QEMU monitor command and returns its output.
+    pub fn monitor(&self, command: &str) -> String {
+        self.try_monitor(command).unwrap_or_else(|e| panic!("QEMU monitor, {command:?}: {e}"))
+    }
+
+    fn try_monitor(&self, command: &str) -> std::io::Result<String> {
+        let mut stream = UnixStream::connect(self.dir.join("monitor.sock"))?;
+        stream.set_read_timeout(Some(MONITOR_TIMEOUT))?;
+        read_prompt(&mut stream)?;
+        stream.write_all(format!("{command}\n").as_bytes())?;
+        read_prompt(&mut stream)
+    }
+
+    /// Reads a 32-bit word of the guest's physical memory.
+    pub fn read_word(&self, address: u32) -> u32 {
+        let output = self.monitor(&format!("xp /1wx {address:#x}"));
+        let prefix = format!("{address:016x}: 0x");
+        let line = output.lines().find_map(|l| l.split_once(&prefix)).map(|(_, value)| value.trim().to_owned());
+        let value = line.unwrap_or_else(|| panic!("no value for {address:#x} in the monitor's output {output:?}"));
+        u32::from_str_radix(&value, 16).unwrap_or_else(|e| panic!("{value:?}: {e}"))
+    }
+
+    /// Runs `test` on a new thread (inside the namespace for [`Qemu::tap`]),
+    /// on a current-thread tokio runtime, and returns its result. A panic
+    /// inside fails the test and shows the firmware's log.
+    pub fn run<T, F, Fut>(&self, test: F) -> T
+    where
+        T: Send,
+        F: FnOnce() -> Fut + Send,
+        Fut: Future<Output = T>,
+    {
+        std::thread::scope(|scope| {
+            let thread = scope.spawn(|| {
+                if let Some(ns) = &self.ns {
+                    ns.enter().expect("the test thread enters the namespace");
+                }
+                let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("a tokio runtime");
+                runtime.block_on(test())
+            });
+            match thread.join() {
+                Ok(value) => value,
+                Err(panic) => std::panic::resume_unwind(panic),
+            }
+        })
+    }
+
+    /// A tokio-modbus client whose first request (the version registers) was
+    /// answered. Retries until [`READY_TIMEOUT`]: slirp accepts a connection
+    /// before the firmware does, and resets it if the firmware is not ready.
+    /// Call it inside [`Qemu::run`].
+    pub async fn connect(&self) -> Context {
+        let deadline = Instant::now() + READY_TIMEOUT;
+        let mut last = String::new();
+        while Instant::now() < deadline {
+            if let Some(status) = self.exit_status() {
+                panic!("QEMU exited ({status}); the firmware's log:\n{}\nQEMU: {}", self.log(), self.stderr());
+            }
+            let attempt = async {
+                let mut ctx = tokio_modbus::client::tcp::connect(self.addr).await.map_err(|e| e.to_string())?;
+                match ctx.read_holding_registers(VERSION_REGISTER, 3).await {
+                    Ok(Ok(_)) => Ok(ctx),
+                    Ok(Err(exception)) => Err(format!("exception {exception:?}")),
+                    Err(error) => Err(error.to_string()),
+                }
+            };
+            match tokio::time::timeout(Duration::from_secs(2), attempt).await {
+                Ok(Ok(ctx)) => return ctx,
+                Ok(Err(error)) => last = error,
+                Err(_) => last = "no answer in 2 s".into(),
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        panic!("the firmware did not answer at {} within {READY_TIMEOUT:?} ({last}); its log:\n{}", self.addr, self.log())
+    }
+
+    /// Quits QEMU and checks the firmware's log: a panic, a hard fault or an
+    /// error line fails the test, as does QEMU exiting by itself. Returns the
+    /// decoded log.
+    pub fn finish(self) -> String {
+        if let Some(status) = self.exit_status() {
+            panic!("QEMU exited by itself ({status}); the firmware's log:\n{}\nQEMU: {}", self.log(), self.stderr());
+        }
+        let _ = self.try_monitor("quit");
+        let deadline = Instant::now() + QUIT_TIMEOUT;
+        let status = loop {
+            if let Some(status) = self.exit_status() {
+                break status;
+            }
+            assert!(Instant::now() < deadline, "QEMU did not quit");
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        let log = self.log();
+        assert!(status.success(), "QEMU exited with {status} after `quit`; the firmware's log:\n{log}");
+        let failures = log_failures(&log);
+        assert!(failures.is_empty(), "the firmware logged {failures:#?}; its whole log:\n{log}");
+        log
+    }
+}
+
+impl Drop for Qemu {
+    fn drop(&mut self) {
+        let child = self.child.get_mut().expect("the child lock");
+        if matches!(child.try_wait(), Ok(None)) {
+            // SIGTERM to `timeout`, which passes it on to QEMU (SIGKILL would
+            // leave QEMU running without its parent).
+            if let Ok(pid) = i32::try_from(child.id()) {
+                // SAFETY: kill has no memory effects; the pid is our child's.
+                unsafe { libc::kill(pid, libc::SIGTERM) };
+            }
+            let _ = child.wait();
+        }
+        if std::thread::panicking() {
+            eprintln!("--- firmware log ({}) ---\n{}\n--- QEMU stderr ---\n{}", self.dir.display(), self.log(), self.stderr());
+        } else {
+            let _ = std::fs::remove_dir_all(&self.dir);
+        }
+    }
+}
+
+/// QEMU's arguments for the image, apart from the monitor.
+pub fn qemu_args(elf: &Path, nic: &str) -> Vec<String> {
+    [
+        "qemu-system-arm",
+        "-M",
+        "mps2-an386",
+        "-cpu",
+        "cortex-m4",
+        "-display",
+        "none",
+        "-serial",
+        "none",
+        "-semihosting-config",
+        "enable=on,target=native",
+        "-nic",
+        nic,
+        "-kernel",
+    ]
+    .into_iter()
+    .map(str::to_owned)
+    .chain([elf.display().to_string()])
+    .collect()
+}
+
+/// Reads monitor output up to the next `(qemu) ` prompt; returns it without
+/// the prompt and with the line editor's echo removed.
+fn read_prompt(stream: &mut UnixStream) -> std::io::Result<String> {
+    let mut bytes = Vec::new();
+    let mut buffer = [0u8; 1024];
+    while !bytes.ends_with(b"(qemu) ") {
+        let n = stream.read(&mut buffer)?;
+        if n == 0 {
+            return Err(std::io::ErrorKind::UnexpectedEof.into());
+        }
+        bytes.extend_from_slice(&buffer[..n]);
+    }
+    bytes.truncate(bytes.len() - b"(qemu) ".len());
+    let mut text = String::new();
+    for line in bytes.lines().map_while(Result::ok) {
+        // The echo of the command is full of cursor movements: skip it.
+        if !line.contains('\u{1b}') {
+            text.push_str(line.trim_end_matches('\r'));
+            text.push('\n');
+        }
+    }
+    Ok(text)
+}
+
+fn free_port() -> u16 {
+    let listener = TcpListener::bind((Ipv4Addr::LOCALHOST, 0)).expect("a free port on 127.0.0.1");
+    listener.local_addr().expect("the listener's address").port()
+}
+
+fn file(path: &Path) -> Result<std::fs::File, String> {
+    std::fs::File::create(path).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn errors_panics_and_faults_in_the_log_are_failures() {
+        let log = "\
+0.000 INFO  firmware 0.1.0 on mps2-an386
+0.004 INFO  lan9118: link up
+1.250 WARN  lan9118: TX error, resetting the transmitter
+2.000 ERROR panicked: index out of bounds
+2.001 ERROR HardFault at pc 0x00001234, lr 0xfffffff9
+";
+        assert_eq!(
+            log_failures(log),
+            ["2.000 ERROR panicked: index out of bounds", "2.001 ERROR HardFault at pc 0x00001234, lr 0xfffffff9"]
+        );
+        assert!(log_failures("0.005 INFO  Modbus TCP server at 10.0.2.15:502\n").is_empty());
+    }
+
+    #[test]
+    fn dep_info_lists_the_sources_with_escaped_spaces() {
+        let dep_info = "/t/release/mps2-an386: /w/firmware/build.rs /w/my\\ dir/lib.rs /w/memory.x\n";
+        assert_eq!(
+            dep_info_sources(dep_info),
+            [PathBuf::from("/w/firmware/build.rs"), PathBuf::from("/w/my dir/lib.rs"), PathBuf::from("/w/memory.x")]
+        );
+        assert!(dep_info_sources("").is_empty());
+    }
+
+    #[test]
+    fn qemu_args_name_the_board_and_the_image() {
+        let args = qemu_args(Path::new("/x/fw.elf"), "user,model=lan9118");
+        assert_eq!(args[0], "qemu-system-arm");
+        assert!(args.windows(2).any(|w| w == ["-M", "mps2-an386"]));
+        assert!(args.windows(2).any(|w| w == ["-nic", "user,model=lan9118"]));
+        assert_eq!(args.last().map(String::as_str), Some("/x/fw.elf"));
+    }
+}

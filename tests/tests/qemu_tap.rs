@@ -1,0 +1,23 @@
+//! The same firmware image on a TAP inside a network namespace (as hal-sim's
+//! tests run): no DHCP server there, so the firmware falls back to its static
+//! address 198.18.0.2/24, and a Modbus client in the namespace reaches it.
+//! Needs root (CAP_NET_ADMIN), like every namespace test.
+
+use system_tests::qemu::{self, LED0, Qemu, VERSION_REGISTER};
+use tokio_modbus::client::{Reader as _, Writer as _};
+
+#[test]
+fn the_image_answers_on_a_tap_in_a_network_namespace() {
+    let qemu = Qemu::tap();
+    qemu.run(|| async {
+        let mut ctx = qemu.connect().await;
+        let version = ctx.read_holding_registers(VERSION_REGISTER, 3).await.unwrap().unwrap();
+        assert_eq!(version, qemu::firmware_version());
+        ctx.write_single_coil(16, true).await.unwrap().unwrap();
+        assert_eq!(ctx.read_coils(16, 1).await.unwrap().unwrap(), [true]);
+    });
+    assert_eq!(qemu.read_word(LED0), 0b01, "coil 16 lit LED0");
+    let log = qemu.finish();
+    assert!(log.contains("no DHCP answer: using 198.18.0.2/24"), "{log}");
+    assert!(log.contains("Modbus TCP server at 198.18.0.2:502"), "{log}");
+}
