@@ -32,7 +32,7 @@ use core::sync::atomic::{AtomicU32, Ordering};
 use embassy_stm32::adc::{Adc, AnyAdcChannel, SampleTime};
 use embassy_stm32::dac::{DacChannel, Value};
 use embassy_stm32::exti::ExtiInput;
-use embassy_stm32::gpio::{AfType, Flex, Level, Output, Pin, Pull, Speed};
+use embassy_stm32::gpio::{AfType, AnyPin, Flex, Level, Output, Pin, Pull, Speed};
 use embassy_stm32::interrupt::typelevel::{Binding, Handler, Interrupt};
 use embassy_stm32::mode::Blocking;
 use embassy_stm32::pac;
@@ -78,7 +78,9 @@ const OVERCAPTURE_FLAGS: u32 = CAPTURE_FLAGS << 8;
 static EDGE: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 
 /// A push-pull output, off, registered for the fault handler's safe state.
-pub fn output(pin: Peri<'static, impl Pin>) -> Output<'static> {
+/// (One copy for every pin: outlined, it keeps bring-up small.)
+#[inline(never)]
+pub fn output(pin: Peri<'static, AnyPin>) -> Output<'static> {
     safety::register_output(pin.port(), pin.pin());
     Output::new(pin, Level::Low, Speed::Low)
 }
