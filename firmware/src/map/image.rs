@@ -151,7 +151,9 @@ impl Image {
         let (values, []) = values.as_chunks::<2>() else { return Err(Exception::IllegalDataValue) };
         let (first, last) = span(start, values.len(), REGISTER_COUNT)?;
         let rows = rows_in(&REGISTERS, first, last, |r| (r.first, r.last));
-        let value_at = |address: u16| values.get(usize::from(address - first)).map(|v| u16::from_be_bytes(*v));
+        let value_at = |address: u16| {
+            address.checked_sub(first).and_then(|i| values.get(usize::from(i))).map(|v| u16::from_be_bytes(*v))
+        };
 
         let mut written = Written::default();
         for row in rows {
