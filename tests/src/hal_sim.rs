@@ -1,0 +1,254 @@
+//! hal-sim under test: started in its own network namespace, driven by a
+//! client on a thread that entered that namespace.
+//!
+//! ```no_run
+//! use system_tests::hal_sim::HalSim;
+//! let sim = HalSim::start(&["--robot", "idle"]);
+//! sim.run(|| async {
+//!     let mut ctx = sim.connect().await;
+//!     // ... tokio-modbus requests ...
+//! });
+//! ```
+
+use std::io::{BufRead, BufReader, Write};
+use std::net::{Ipv4Addr, SocketAddr};
+use std::os::unix::net::UnixStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use tokio_modbus::client::Context;
+
+use crate::netns::{DEVICE_IP, Namespace, TAP};
+
+/// How long hal-sim may take to print its "listening" line.
+pub const START_TIMEOUT: Duration = Duration::from_secs(10);
+/// The longest a test's client side may run.
+pub const TEST_TIMEOUT: Duration = Duration::from_secs(60);
+/// The Modbus port hal-sim listens on in the tests (each test has its own namespace).
+pub const PORT: u16 = 502;
+
+/// The hal-sim binary: `HAL_SIM_BIN`, or `target/debug/hal-sim` of this workspace.
+pub fn binary() -> PathBuf {
+    if let Some(path) = std::env::var_os("HAL_SIM_BIN") {
+        let path = PathBuf::from(path);
+        assert!(path.is_file(), "HAL_SIM_BIN={} is not a file", path.display());
+        return path;
+    }
+    let target = match std::env::var_os("CARGO_TARGET_DIR") {
+        Some(dir) => PathBuf::from(dir),
+        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join("target"),
+    };
+    let path = target.join("debug").join("hal-sim");
+    assert!(
+        path.is_file(),
+        "hal-sim is not built ({} is missing): run `cargo build -p hal-sim` first, or set HAL_SIM_BIN",
+        path.display()
+    );
+    path
+}
+
+/// A running hal-sim in a namespace of its own; killed (and the namespace
+/// deleted) on drop.
+#[derive(Debug)]
+pub struct HalSim {
+    child: Child,
+    control: PathBuf,
+    log: PathBuf,
+    ns: Namespace,
+}
+
+impl HalSim {
+    /// Starts hal-sim on a new namespace's TAP at 198.18.0.2 with a control
+    /// socket, plus `args`, and waits for its "listening" line.
+    pub fn start(args: &[&str]) -> Self {
+        let ns = Namespace::new().expect("a network namespace with a TAP");
+        let dir = std::env::temp_dir();
+        let control = dir.join(format!("{}.control.sock", ns.name()));
+        let log = dir.join(format!("{}.hal-sim.log", ns.name()));
+        let stderr = std::fs::File::create(&log).expect("a log file in the temp dir");
+        let mut child = ns
+            .command(binary())
+            .args(["--tap", TAP, "--ip", &format!("{DEVICE_IP}/24"), "--control"])
+            .arg(&control)
+            .args(args)
+            .env("RUST_LOG", std::env::var("RUST_LOG").unwrap_or_else(|_| "debug".into()))
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(stderr)
+            .spawn()
+            .expect("hal-sim starts");
+        let stdout = child.stdout.take().expect("hal-sim's stdout");
+        let (tx, rx) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        let mut sim = Self { child, control, log, ns };
+        let deadline = Instant::now() + START_TIMEOUT;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match rx.recv_timeout(left) {
+                Ok(line) if line.starts_with("hal-sim: modbus tcp listening on ") => {
+                    let expected = format!("hal-sim: modbus tcp listening on {DEVICE_IP}:");
+                    assert!(line.starts_with(&expected) && line.ends_with(&format!("(tap {TAP})")), "{line}");
+                    break;
+                }
+                Ok(_) => {}
+                Err(_) => {
+                    let status = sim.child.try_wait().ok().flatten();
+                    panic!("hal-sim did not say it was listening (exit: {status:?}); its log:\n{}", sim.log());
+                }
+            }
+        }
+        sim
+    }
+
+    /// The namespace hal-sim runs in.
+    pub fn ns(&self) -> &Namespace {
+        &self.ns
+    }
+
+    /// hal-sim's Modbus address.
+    pub fn addr(&self) -> SocketAddr {
+        let ip: Ipv4Addr = DEVICE_IP.parse().expect("DEVICE_IP is an IPv4 address");
+        SocketAddr::from((ip, PORT))
+    }
+
+    /// The control socket's path.
+    pub fn control_path(&self) -> &Path {
+        &self.control
+    }
+
+    /// hal-sim's log so far (stderr).
+    pub fn log(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    /// Sends one control command and returns the reply line (without newline).
+    pub fn control(&self, command: &str) -> String {
+        let mut stream = UnixStream::connect(&self.control).expect("the control socket accepts");
+        stream.set_read_timeout(Some(Duration::from_secs(5))).expect("a read timeout");
+        stream.write_all(format!("{command}\n").as_bytes()).expect("the command is sent");
+        let mut reply = String::new();
+        BufReader::new(&mut stream).read_line(&mut reply).expect("a reply line");
+        assert!(reply.ends_with('\n'), "a whole reply line to {command:?}: {reply:?}");
+        reply.trim_end().to_owned()
+    }
+
+    /// Sends a control command that must succeed; returns what follows `ok`.
+    pub fn control_ok(&self, command: &str) -> String {
+        let reply = self.control(command);
+        match reply.strip_prefix("ok") {
+            Some(rest) => rest.trim().to_owned(),
+            None => panic!("{command:?} answered {reply:?}"),
+        }
+    }
+
+    /// Runs `test` on a new thread inside the namespace, on a current-thread
+    /// tokio runtime, and returns its result (a panic inside fails the test,
+    /// and so does running longer than [`TEST_TIMEOUT`]).
+    pub fn run<T, F, Fut>(&self, test: F) -> T
+    where
+        T: Send,
+        F: FnOnce() -> Fut + Send,
+        Fut: Future<Output = T>,
+    {
+        std::thread::scope(|scope| {
+            let thread = scope.spawn(|| {
+                self.ns.enter().expect("the test thread enters the namespace");
+                let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("a tokio runtime");
+                match runtime.block_on(async { tokio::time::timeout(TEST_TIMEOUT, test()).await }) {
+                    Ok(value) => value,
+                    Err(_) => panic!("the client side did not finish in {TEST_TIMEOUT:?} (hal-sim stuck or dead?)"),
+                }
+            });
+            match thread.join() {
+                Ok(value) => value,
+                Err(panic) => std::panic::resume_unwind(panic),
+            }
+        })
+    }
+
+    /// A tokio-modbus client connected to hal-sim (unit id 0xFF). Call it
+    /// inside [`HalSim::run`].
+    pub async fn connect(&self) -> Context {
+        tokio_modbus::client::tcp::connect(self.addr()).await.expect("tokio-modbus connects to hal-sim")
+    }
+
+    /// A raw TCP stream to hal-sim, without Nagle, for hand-made frames.
+    pub async fn raw(&self) -> tokio::net::TcpStream {
+        let stream = tokio::net::TcpStream::connect(self.addr()).await.expect("a TCP connection to hal-sim");
+        stream.set_nodelay(true).expect("TCP_NODELAY");
+        stream
+    }
+
+    /// Whether hal-sim is still running.
+    pub fn is_running(&mut self) -> bool {
+        matches!(self.child.try_wait(), Ok(None))
+    }
+}
+
+impl Drop for HalSim {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        let _ = std::fs::remove_file(&self.control);
+        if std::thread::panicking() {
+            eprintln!("--- hal-sim log ({}) ---\n{}", self.log.display(), self.log());
+        } else {
+            let _ = std::fs::remove_file(&self.log);
+        }
+    }
+}
+
+/// An MBAP frame: transaction id, protocol id, the length field (unit id +
+/// PDU), unit id, PDU.
+pub fn frame(transaction: u16, protocol: u16, unit: u8, pdu: &[u8]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(7 + pdu.len());
+    out.extend_from_slice(&transaction.to_be_bytes());
+    out.extend_from_slice(&protocol.to_be_bytes());
+    out.extend_from_slice(&(pdu.len() as u16 + 1).to_be_bytes());
+    out.push(unit);
+    out.extend_from_slice(pdu);
+    out
+}
+
+/// Reads one whole reply frame (by its length field) within `wait`; `None`
+/// if nothing complete arrived, or the connection closed.
+pub async fn read_frame(stream: &mut tokio::net::TcpStream, wait: Duration) -> Option<Vec<u8>> {
+    use tokio::io::AsyncReadExt;
+    let read = async {
+        let mut header = [0u8; 7];
+        stream.read_exact(&mut header).await.ok()?;
+        let len = usize::from(u16::from_be_bytes([header[4], header[5]]));
+        let mut rest = vec![0u8; len.saturating_sub(1)];
+        stream.read_exact(&mut rest).await.ok()?;
+        let mut whole = header.to_vec();
+        whole.extend_from_slice(&rest);
+        Some(whole)
+    };
+    tokio::time::timeout(wait, read).await.ok().flatten()
+}
+
+/// Whether the server closed `stream` within `wait` (end of stream or reset,
+/// with no bytes before it).
+pub async fn closed_within(stream: &mut tokio::net::TcpStream, wait: Duration) -> bool {
+    use tokio::io::AsyncReadExt;
+    let mut byte = [0u8; 1];
+    matches!(tokio::time::timeout(wait, stream.read(&mut byte)).await, Ok(Ok(0) | Err(_)))
+}
+
+/// The firmware crate's version, as hal-sim reports it in registers 256-258.
+pub fn firmware_version() -> [u16; 3] {
+    let manifest = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/Cargo.toml"))
+        .expect("firmware/Cargo.toml");
+    let line = manifest.lines().find(|l| l.starts_with("version = ")).expect("a version line");
+    let version = line.trim_start_matches("version = ").trim_matches('"');
+    let parts: Vec<u16> = version.split('.').map(|p| p.parse().expect("a numeric version")).collect();
+    [parts[0], parts[1], parts[2]]
+}

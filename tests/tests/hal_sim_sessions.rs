@@ -1,0 +1,193 @@
+//! hal-sim's sessions: 8 concurrent clients and the eviction of the idlest,
+//! idle and frame timeouts, pipelining, a request split into single bytes,
+//! a bad protocol id and a bad length. Where tokio-modbus cannot express the
+//! bytes, a raw TCP stream sends them, and tokio-modbus checks the server
+//! afterwards on the same hal-sim.
+
+use std::time::Duration;
+
+use system_tests::hal_sim::{HalSim, closed_within, frame, read_frame};
+use tokio::io::AsyncWriteExt;
+use tokio_modbus::prelude::*;
+
+const REPLY_WAIT: Duration = Duration::from_secs(2);
+
+/// Whether a tokio-modbus context's connection has been closed by the server.
+async fn is_closed(ctx: &mut tokio_modbus::client::Context) -> bool {
+    matches!(
+        tokio::time::timeout(REPLY_WAIT, ctx.read_holding_registers(128, 1)).await,
+        Ok(Err(_)) | Err(_)
+    )
+}
+
+#[test]
+fn eight_clients_are_served_and_a_ninth_evicts_the_idlest() {
+    let sim = HalSim::start(&["--robot", "idle", "--idle-timeout", "0"]);
+    sim.run(|| async {
+        let mut clients = Vec::new();
+        for i in 0..8u16 {
+            let mut ctx = sim.connect().await;
+            ctx.write_single_register(128 + i, i).await.unwrap().unwrap();
+            clients.push(ctx);
+        }
+        // All eight are served at once; then every one but client 3 makes a request.
+        for (i, ctx) in clients.iter_mut().enumerate() {
+            assert_eq!(ctx.read_holding_registers(128 + i as u16, 1).await.unwrap().unwrap(), [i as u16]);
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        for (i, ctx) in clients.iter_mut().enumerate() {
+            if i != 3 {
+                ctx.read_holding_registers(128, 1).await.unwrap().unwrap();
+            }
+        }
+        // The ninth is served, and client 3 (the idlest) is closed.
+        let mut ninth = sim.connect().await;
+        assert_eq!(ninth.read_holding_registers(131, 1).await.unwrap().unwrap(), [3]);
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        for (i, ctx) in clients.iter_mut().enumerate() {
+            if i == 3 {
+                assert!(is_closed(ctx).await, "the idlest client is evicted");
+            } else {
+                assert_eq!(ctx.read_holding_registers(128 + i as u16, 1).await.unwrap().unwrap(), [i as u16], "client {i}");
+            }
+        }
+        ninth.read_holding_registers(128, 8).await.unwrap().unwrap();
+    });
+    assert!(sim.log().contains("closing the idlest"));
+}
+
+#[test]
+fn max_connections_sets_how_many_are_served() {
+    let sim = HalSim::start(&["--robot", "idle", "--max-connections", "2", "--idle-timeout", "0"]);
+    sim.run(|| async {
+        let mut first = sim.connect().await;
+        first.read_holding_registers(0, 1).await.unwrap().unwrap();
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        let mut second = sim.connect().await;
+        second.read_holding_registers(0, 1).await.unwrap().unwrap();
+        let mut third = sim.connect().await;
+        third.read_holding_registers(0, 1).await.unwrap().unwrap();
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        assert!(is_closed(&mut first).await);
+        second.read_holding_registers(0, 1).await.unwrap().unwrap();
+        third.read_holding_registers(0, 1).await.unwrap().unwrap();
+    });
+}
+
+#[test]
+fn an_idle_session_times_out_and_a_busy_one_does_not() {
+    let sim = HalSim::start(&["--robot", "idle", "--idle-timeout", "1"]);
+    sim.run(|| async {
+        let mut idle = sim.connect().await;
+        let mut busy = sim.connect().await;
+        idle.read_holding_registers(0, 1).await.unwrap().unwrap();
+        for _ in 0..8 {
+            busy.read_holding_registers(0, 1).await.unwrap().unwrap();
+            tokio::time::sleep(Duration::from_millis(250)).await;
+        }
+        assert!(is_closed(&mut idle).await, "no request for 2 s with a 1 s idle timeout");
+        busy.read_holding_registers(0, 1).await.unwrap().unwrap();
+    });
+    assert!(sim.log().contains("idle timeout"));
+}
+
+#[test]
+fn a_frame_that_stops_halfway_times_out() {
+    let sim = HalSim::start(&["--robot", "idle", "--idle-timeout", "0"]);
+    sim.run(|| async {
+        let mut raw = sim.raw().await;
+        let request = frame(1, 0, 1, &[0x03, 0x00, 0x80, 0x00, 0x01]);
+        raw.write_all(&request[..5]).await.unwrap();
+        // The frame timeout is 2 s; without idle timeout only it can close this.
+        assert!(closed_within(&mut raw, Duration::from_secs(4)).await, "a half frame is not waited for forever");
+        let mut ctx = sim.connect().await;
+        ctx.read_holding_registers(128, 1).await.unwrap().unwrap();
+    });
+}
+
+#[test]
+fn pipelined_requests_in_one_segment_are_answered_in_order() {
+    let sim = HalSim::start(&["--robot", "idle"]);
+    sim.run(|| async {
+        let mut raw = sim.raw().await;
+        let mut segment = Vec::new();
+        segment.extend(frame(0x0101, 0, 1, &[0x06, 0x00, 0x80, 0xbe, 0xef])); // write 128
+        segment.extend(frame(0x0102, 0, 1, &[0x03, 0x00, 0x80, 0x00, 0x01])); // read 128
+        segment.extend(frame(0x0103, 0, 1, &[0x41])); // unknown function
+        segment.extend(frame(0x0104, 0, 1, &[0x10, 0x00, 0x81, 0x00, 0x02, 0x04, 0x00, 0x01, 0x00, 0x02])); // write 129-130
+        segment.extend(frame(0x0105, 0, 7, &[0x01, 0x00, 0x10, 0x00, 0x08])); // read coils 16-23
+        raw.write_all(&segment).await.unwrap();
+        let expected: [&[u8]; 5] = [
+            &[0x01, 0x01, 0, 0, 0, 6, 1, 0x06, 0x00, 0x80, 0xbe, 0xef],
+            &[0x01, 0x02, 0, 0, 0, 5, 1, 0x03, 0x02, 0xbe, 0xef],
+            &[0x01, 0x03, 0, 0, 0, 3, 1, 0xc1, 0x01],
+            &[0x01, 0x04, 0, 0, 0, 6, 1, 0x10, 0x00, 0x81, 0x00, 0x02],
+            &[0x01, 0x05, 0, 0, 0, 4, 7, 0x01, 0x01, 0x00],
+        ];
+        for want in expected {
+            assert_eq!(read_frame(&mut raw, REPLY_WAIT).await.as_deref(), Some(want));
+        }
+        let mut ctx = sim.connect().await;
+        assert_eq!(ctx.read_holding_registers(128, 3).await.unwrap().unwrap(), [0xbeef, 1, 2]);
+        // The raw connection is still served.
+        raw.write_all(&frame(9, 0, 1, &[0x03, 0x00, 0x82, 0x00, 0x01])).await.unwrap();
+        assert_eq!(read_frame(&mut raw, REPLY_WAIT).await.unwrap(), [0, 9, 0, 0, 0, 5, 1, 0x03, 0x02, 0x00, 0x02]);
+    });
+}
+
+#[test]
+fn a_request_sent_one_byte_at_a_time_is_answered() {
+    let sim = HalSim::start(&["--robot", "idle"]);
+    sim.run(|| async {
+        let mut raw = sim.raw().await;
+        let request = frame(0x4242, 0, 1, &[0x10, 0x00, 0x90, 0x00, 0x02, 0x04, 0x12, 0x34, 0x56, 0x78]);
+        for byte in &request {
+            raw.write_all(std::slice::from_ref(byte)).await.unwrap();
+            raw.flush().await.unwrap();
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        let reply = read_frame(&mut raw, REPLY_WAIT).await.expect("a reply");
+        assert_eq!(reply, [0x42, 0x42, 0, 0, 0, 6, 1, 0x10, 0x00, 0x90, 0x00, 0x02]);
+        let mut ctx = sim.connect().await;
+        assert_eq!(ctx.read_holding_registers(0x90, 2).await.unwrap().unwrap(), [0x1234, 0x5678]);
+    });
+}
+
+#[test]
+fn a_bad_protocol_id_is_discarded_and_the_connection_carries_on() {
+    let sim = HalSim::start(&["--robot", "idle"]);
+    sim.run(|| async {
+        let mut raw = sim.raw().await;
+        // Not Modbus: a write that must not happen, and no reply.
+        raw.write_all(&frame(1, 0x0001, 1, &[0x06, 0x00, 0x80, 0x00, 0x63])).await.unwrap();
+        assert_eq!(read_frame(&mut raw, Duration::from_millis(500)).await, None, "no reply to protocol id 1");
+        raw.write_all(&frame(2, 0xffff, 1, &[0x03, 0x00, 0x80, 0x00, 0x01])).await.unwrap();
+        // The next Modbus frame on the same connection is answered.
+        raw.write_all(&frame(3, 0, 1, &[0x03, 0x00, 0x80, 0x00, 0x01])).await.unwrap();
+        assert_eq!(read_frame(&mut raw, REPLY_WAIT).await.unwrap(), [0, 3, 0, 0, 0, 5, 1, 0x03, 0x02, 0x00, 0x00]);
+        let mut ctx = sim.connect().await;
+        assert_eq!(ctx.read_holding_registers(128, 1).await.unwrap().unwrap(), [0], "the discarded write did nothing");
+    });
+    assert!(sim.log().contains("discarded protocol id 1"));
+}
+
+#[test]
+fn a_bad_length_closes_that_connection_while_others_carry_on() {
+    let sim = HalSim::start(&["--robot", "idle"]);
+    sim.run(|| async {
+        let mut other = sim.connect().await;
+        other.write_single_register(128, 5).await.unwrap().unwrap();
+        for length in [0u16, 1, 255, 0xffff] {
+            let mut raw = sim.raw().await;
+            let mut bad = vec![0x00, 0x01, 0x00, 0x00];
+            bad.extend_from_slice(&length.to_be_bytes());
+            bad.extend_from_slice(&[0x01, 0x03, 0x00, 0x80, 0x00, 0x01]);
+            raw.write_all(&bad).await.unwrap();
+            assert!(closed_within(&mut raw, REPLY_WAIT).await, "length {length} closes the connection");
+            assert_eq!(other.read_holding_registers(128, 1).await.unwrap().unwrap(), [5], "after length {length}");
+        }
+        let mut fresh = sim.connect().await;
+        fresh.read_holding_registers(128, 1).await.unwrap().unwrap();
+    });
+    assert!(sim.log().contains("bad MBAP length"));
+}
