@@ -4,7 +4,7 @@
 //! locked. This is the per-request cost the benchmarks measure.
 
 use crate::map::{Image, WritePolicy, Written};
-use crate::modbus::mbap::{self, Frame, Header};
+use crate::modbus::mbap::{self, Frame, Header, MAX_ADU_LEN};
 use crate::modbus::pdu::{self, EXCEPTION_FLAG};
 use crate::modbus::{Exception, Request, Response};
 
@@ -32,16 +32,15 @@ pub enum Outcome {
     Discard { protocol_id: u16 },
 }
 
-/// Answers the request `frame` (exactly one whole MBAP frame) into `reply`
-/// (at least [`mbap::MAX_ADU_LEN`] bytes).
-pub fn respond(frame: &[u8], reply: &mut [u8], image: &mut Image, policy: &Policy) -> Outcome {
+/// Answers the request `frame` (exactly one whole MBAP frame) into `reply`.
+pub fn respond(frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], image: &mut Image, policy: &Policy) -> Outcome {
     let request = Frame::new_unchecked(frame);
     let header = Header::parse(&request);
     if header.protocol_id != mbap::MODBUS_PROTOCOL_ID {
         return Outcome::Discard { protocol_id: header.protocol_id };
     }
     let pdu = request.pdu();
-    let mut out = Frame::new_unchecked(reply);
+    let mut out = Frame::new_unchecked(&mut reply[..]);
     let result = match policy.unit_id {
         Some(id) if header.unit_id != id && !ALWAYS_ANSWERED_UNITS.contains(&header.unit_id) => {
             Err(Exception::GatewayTargetDeviceFailedToRespond)

@@ -217,3 +217,5 @@ pub async fn refresh_loop(shared: &Shared<'_>, inputs: &mut impl InputPins, robo
     }
 }
 
+#[cfg(test)]
+pub(crate) mod testing;

@@ -142,3 +142,5 @@ async fn write_all<S: Write>(stream: &mut S, mut bytes: &[u8]) -> Result<(), Err
     Ok(())
 }
 
+#[cfg(test)]
+mod tests;
