@@ -75,7 +75,10 @@ pub fn image() -> PathBuf {
     };
     let path = target.join("thumbv7em-none-eabihf/release/mps2-an386");
     let built = modified(&path).unwrap_or_else(|| {
-        panic!("the mps2-an386 image is not built ({} is missing): run `{BUILD_COMMAND}` first, or set {ELF_ENV}", path.display())
+        panic!(
+            "the mps2-an386 image is not built ({} is missing): run `{BUILD_COMMAND}` first, or set {ELF_ENV}",
+            path.display()
+        )
     });
     let dep_info = std::fs::read_to_string(path.with_extension("d")).unwrap_or_default();
     let manifest = workspace().join("firmware/Cargo.toml");
@@ -138,7 +141,8 @@ pub fn defmt_print() -> &'static Path {
             None => PathBuf::from(std::env::var_os("HOME").unwrap_or_default()).join(".cargo/bin"),
         };
         let found = |dirs: &mut dyn Iterator<Item = PathBuf>| dirs.map(|d| d.join("defmt-print")).find(|p| p.is_file());
-        let path_dirs = std::env::var_os("PATH").map(|p| std::env::split_paths(&p).collect::<Vec<_>>()).unwrap_or_default();
+        let path_dirs =
+            std::env::var_os("PATH").map(|p| std::env::split_paths(&p).collect::<Vec<_>>()).unwrap_or_default();
         if let Some(path) = found(&mut path_dirs.into_iter().chain([cargo_bin.clone()])) {
             return path;
         }
@@ -210,7 +214,11 @@ impl Qemu {
     fn boot(network: Network<'_>, addr: SocketAddr) -> Result<Self, String> {
         static NEXT: AtomicU32 = AtomicU32::new(0);
         let elf = image();
-        let dir = std::env::temp_dir().join(format!("mbqemu-{}-{}", std::process::id(), NEXT.fetch_add(1, Ordering::Relaxed)));
+        let dir = std::env::temp_dir().join(format!(
+            "mbqemu-{}-{}",
+            std::process::id(),
+            NEXT.fetch_add(1, Ordering::Relaxed)
+        ));
         std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
         let nic = match network {
             Network::Slirp { port } => {
@@ -275,12 +283,8 @@ impl Qemu {
         let Ok(raw) = std::fs::File::open(self.dir.join("firmware.log")) else {
             return String::new();
         };
-        let output = Command::new(defmt_print())
-            .arg("-e")
-            .arg(&self.elf)
-            .stdin(raw)
-            .output()
-            .expect("defmt-print runs");
+        let output =
+            Command::new(defmt_print()).arg("-e").arg(&self.elf).stdin(raw).output().expect("defmt-print runs");
         let mut text = String::from_utf8_lossy(&output.stdout).into_owned();
         if !output.stderr.is_empty() {
             let _ = write!(text, "{}", String::from_utf8_lossy(&output.stderr));
@@ -324,7 +328,8 @@ impl Qemu {
                 if let Some(ns) = &self.ns {
                     ns.enter().expect("the test thread enters the namespace");
                 }
-                let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("a tokio runtime");
+                let runtime =
+                    tokio::runtime::Builder::new_current_thread().enable_all().build().expect("a tokio runtime");
                 runtime.block_on(test())
             });
             match thread.join() {
@@ -360,7 +365,11 @@ impl Qemu {
             }
             tokio::time::sleep(Duration::from_millis(100)).await;
         }
-        panic!("the firmware did not answer at {} within {READY_TIMEOUT:?} ({last}); its log:\n{}", self.addr, self.log())
+        panic!(
+            "the firmware did not answer at {} within {READY_TIMEOUT:?} ({last}); its log:\n{}",
+            self.addr,
+            self.log()
+        )
     }
 
     /// Quits QEMU and checks the firmware's log: a panic, a hard fault or an
@@ -400,7 +409,12 @@ impl Drop for Qemu {
             let _ = child.wait();
         }
         if std::thread::panicking() {
-            eprintln!("--- firmware log ({}) ---\n{}\n--- QEMU stderr ---\n{}", self.dir.display(), self.log(), self.stderr());
+            eprintln!(
+                "--- firmware log ({}) ---\n{}\n--- QEMU stderr ---\n{}",
+                self.dir.display(),
+                self.log(),
+                self.stderr()
+            );
         } else {
             let _ = std::fs::remove_dir_all(&self.dir);
         }

@@ -149,7 +149,11 @@ fn each_exception_is_provoked() {
         assert_eq!(ctx.read_coils(200, 67).await.unwrap(), Err(IllegalDataAddress));
         assert_eq!(ctx.write_single_register(2, 1).await.unwrap(), Err(IllegalDataAddress));
         assert_eq!(ctx.write_single_coil(44, true).await.unwrap(), Err(IllegalDataAddress));
-        assert_eq!(ctx.write_multiple_registers(254, &[1, 2, 3]).await.unwrap(), Ok(()), "256 is read-only: seed policy");
+        assert_eq!(
+            ctx.write_multiple_registers(254, &[1, 2, 3]).await.unwrap(),
+            Ok(()),
+            "256 is read-only: seed policy"
+        );
         assert_eq!(ctx.write_multiple_registers(434, &[1, 2, 3]).await.unwrap(), Err(IllegalDataAddress));
 
         // 03 ILLEGAL DATA VALUE: quantities out of range, a single-coil value
