@@ -292,6 +292,19 @@ impl Qemu {
         text
     }
 
+    /// Waits until the decoded log contains `needle`; returns the log.
+    pub fn wait_for_log(&self, needle: &str, timeout: Duration) -> String {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let log = self.log();
+            if log.contains(needle) {
+                return log;
+            }
+            assert!(Instant::now() < deadline, "no {needle:?} in the firmware's log within {timeout:?}:\n{log}");
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
     /// Runs a QEMU monitor command and returns its output.
     pub fn monitor(&self, command: &str) -> String {
         self.try_monitor(command).unwrap_or_else(|e| panic!("QEMU monitor, {command:?}: {e}"))

@@ -9,6 +9,7 @@
 //! first use if missing).
 
 use std::borrow::Cow;
+use std::time::Duration;
 
 use system_tests::qemu::{self, LED0, Qemu, VERSION_REGISTER};
 use tokio_modbus::ExceptionCode::{IllegalDataAddress, IllegalDataValue, IllegalFunction};
@@ -233,4 +234,25 @@ fn coil_16_lights_led0_and_clearing_it_turns_it_off() {
         assert_eq!(qemu.read_word(LED0), 0);
     });
     qemu.finish();
+}
+
+#[test]
+fn the_driver_follows_the_link_down_and_up() {
+    // QEMU's name for the board's NIC (`info network`).
+    const NIC: &str = "lan9118.0";
+    let qemu = Qemu::slirp();
+    qemu.run(|| async {
+        let mut ctx = qemu.connect().await;
+        ctx.write_single_register(200, 0x1234).await.unwrap().unwrap();
+        ctx.disconnect().await.unwrap();
+    });
+    qemu.monitor(&format!("set_link {NIC} off"));
+    qemu.wait_for_log("lan9118: link down", Duration::from_secs(5));
+    qemu.monitor(&format!("set_link {NIC} on"));
+    qemu.run(|| async {
+        let mut ctx = qemu.connect().await;
+        assert_eq!(ctx.read_holding_registers(200, 1).await.unwrap().unwrap(), [0x1234], "the image outlived the link");
+    });
+    let log = qemu.finish();
+    assert_eq!(log.matches("lan9118: link up").count(), 2, "up at boot and again after set_link on:\n{log}");
 }
