@@ -144,6 +144,10 @@ fn tap_error(tap: &str, e: &std::io::Error) -> String {
     let cause = match e.raw_os_error() {
         Some(libc::EBUSY) => format!("TAP {tap} is already in use by another program (another hal-sim?)"),
         Some(libc::ENOENT | libc::ENODEV) => "/dev/net/tun is missing: load the tun module (`modprobe tun`)".to_owned(),
+        Some(libc::EACCES) => "opening a TAP needs the CAP_NET_ADMIN privilege (root), or a TAP made beforehand for \
+             your user and /dev/net/tun open to you (most distributions make it mode 0666; if `ls -l /dev/net/tun` \
+             shows crw-------, `sudo chmod 0666 /dev/net/tun`)"
+            .to_owned(),
         _ => "opening a TAP needs the CAP_NET_ADMIN privilege (root), or a TAP made beforehand for your user".to_owned(),
     };
     format!(
