@@ -96,18 +96,19 @@ impl Image {
         }
     }
 
-    /// Sets a register from its source (pins, robot, boot); bypasses the policy.
+    /// Sets a register from its source (pins, robot, boot); bypasses the
+    /// policy. Reserved addresses are left alone: they always read 0.
     pub fn set_register(&mut self, address: u16, value: u16) {
-        if let Some(slot) = self.registers.get_mut(usize::from(address)) {
+        let reserved = table::register_row(address).is_none_or(|row| row.access == Access::Reserved);
+        if let Some(slot) = self.registers.get_mut(usize::from(address)).filter(|_| !reserved) {
             *slot = value;
         }
     }
 
     /// Sets consecutive registers from a source.
     pub fn set_registers(&mut self, start: u16, values: &[u16]) {
-        let start = usize::from(start);
-        if let Some(dst) = self.registers.get_mut(start..start.saturating_add(values.len())) {
-            dst.copy_from_slice(values);
+        for (address, &value) in (start..=u16::MAX).zip(values) {
+            self.set_register(address, value);
         }
     }
 
@@ -249,3 +250,5 @@ impl Image {
     }
 }
 
+#[cfg(test)]
+mod tests;
