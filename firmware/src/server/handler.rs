@@ -111,3 +111,5 @@ fn echo(pdu: &[u8], out: &mut [u8]) -> Result<usize, Exception> {
 /// The largest reply: a 125-register read fits an ADU with room to spare.
 const _: () = assert!(2 + 2 * pdu::MAX_READ_REGISTERS as usize <= mbap::MAX_PDU_LEN);
 
+#[cfg(test)]
+mod tests;
