@@ -143,4 +143,6 @@ async fn write_all<S: Write>(stream: &mut S, mut bytes: &[u8]) -> Result<(), Err
 }
 
 #[cfg(test)]
+mod properties;
+#[cfg(test)]
 mod tests;
