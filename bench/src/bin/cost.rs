@@ -1,0 +1,117 @@
+//! Cost per request: parse + execute + emit of one whole Modbus TCP ADU, by
+//! this project's handler or by rmodbus 0.13, `ITERATIONS` times.
+//!
+//! Run under `valgrind --tool=cachegrind` by `scripts/bench-cost`, which
+//! takes the difference between two iteration counts so start-up cancels
+//! out, and reports instructions per request and the ratio.
+//!
+//! Usage: cost ours|rmodbus fc03x10|fc03x125|fc10x120|fc10x123 ITERATIONS
+
+use std::hint::black_box;
+use std::process::ExitCode;
+
+use firmware::map::Image;
+use firmware::modbus::mbap::MAX_ADU_LEN;
+use firmware::server::handler::{self, Outcome, Policy};
+use rmodbus::server::ModbusFrame;
+use rmodbus::server::storage::ModbusStorageSmall;
+use rmodbus::{ModbusFrameBuf, ModbusProto};
+
+/// A request ADU: transaction 1, unit 1.
+fn request(case: &str) -> Option<Vec<u8>> {
+    let (pdu, quantity): (Vec<u8>, u16) = match case {
+        "fc03x10" => (vec![0x03, 0x00, 0x80, 0x00, 10], 10),
+        "fc03x125" => (vec![0x03, 0x00, 0x80, 0x00, 125], 125),
+        "fc10x120" | "fc10x123" => {
+            let quantity: u16 = if case == "fc10x120" { 120 } else { 123 };
+            let mut pdu = vec![0x10, 0x00, 0x80];
+            pdu.extend(quantity.to_be_bytes());
+            pdu.push((2 * quantity) as u8);
+            pdu.extend((0..quantity).flat_map(|v| (v * 7).to_be_bytes()));
+            (pdu, quantity)
+        }
+        _ => return None,
+    };
+    let _ = quantity;
+    let mut adu = vec![0x00, 0x01, 0x00, 0x00];
+    adu.extend(((pdu.len() + 1) as u16).to_be_bytes());
+    adu.push(1);
+    adu.extend(pdu);
+    Some(adu)
+}
+
+fn ours(adu: &[u8], iterations: u64) -> usize {
+    let mut image = Image::new();
+    let policy = Policy::default();
+    let mut reply = [0u8; MAX_ADU_LEN];
+    let mut total = 0;
+    for _ in 0..iterations {
+        if let Outcome::Reply { len, .. } = handler::respond(black_box(adu), &mut reply, &mut image, &policy) {
+            total += black_box(&reply)[..len].len();
+        }
+    }
+    total
+}
+
+fn rmodbus(adu: &[u8], iterations: u64) -> usize {
+    let mut storage = ModbusStorageSmall::default();
+    // rmodbus reads a request from a 256-byte frame buffer, as its TCP server example does.
+    let mut buf: ModbusFrameBuf = [0; 256];
+    let Some(dst) = buf.get_mut(..adu.len()) else { return 0 };
+    dst.copy_from_slice(adu);
+    let mut response: Vec<u8> = Vec::with_capacity(256);
+    let mut total = 0;
+    for _ in 0..iterations {
+        response.clear();
+        let mut frame = ModbusFrame::new(1, black_box(&buf), ModbusProto::TcpUdp, &mut response);
+        if frame.parse().is_err() {
+            return 0;
+        }
+        if frame.processing_required {
+            let result = if frame.readonly { frame.process_read(&storage) } else { frame.process_write(&mut storage) };
+            if result.is_err() {
+                return 0;
+            }
+        }
+        if frame.response_required && frame.finalize_response().is_err() {
+            return 0;
+        }
+        total += black_box(&response).len();
+    }
+    total
+}
+
+fn main() -> ExitCode {
+    let args: Vec<String> = std::env::args().collect();
+    let (Some(which), Some(case), Some(iterations)) = (args.get(1), args.get(2), args.get(3)) else {
+        eprintln!("usage: cost ours|rmodbus fc03x10|fc03x125|fc10x120|fc10x123 ITERATIONS");
+        return ExitCode::from(2);
+    };
+    let (Some(adu), Ok(iterations)) = (request(case), iterations.parse::<u64>()) else {
+        eprintln!("cost: unknown case {case:?} or bad iteration count {iterations:?}");
+        return ExitCode::from(2);
+    };
+    let bytes = match which.as_str() {
+        "ours" => ours(&adu, iterations),
+        "rmodbus" if adu.len() <= 256 => rmodbus(&adu, iterations),
+        "rmodbus" => {
+            eprintln!("cost: rmodbus cannot hold a {}-byte request in its 256-byte buffer", adu.len());
+            return ExitCode::from(3);
+        }
+        _ => {
+            eprintln!("cost: unknown implementation {which:?}");
+            return ExitCode::from(2);
+        }
+    };
+    // Every request must have been answered with a normal reply.
+    let expected_reply = match case.as_str() {
+        "fc03x10" => 9 + 20,
+        "fc03x125" => 9 + 250,
+        _ => 12,
+    };
+    if bytes != expected_reply * iterations as usize {
+        eprintln!("cost: {which} gave {bytes} reply bytes for {iterations} requests, expected {expected_reply} each");
+        return ExitCode::FAILURE;
+    }
+    ExitCode::SUCCESS
+}
