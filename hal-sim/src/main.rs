@@ -35,7 +35,8 @@ fn main() -> ExitCode {
             return ExitCode::SUCCESS;
         }
         Ok(Action::Version) => {
-            println!("hal-sim {}", env!("CARGO_PKG_VERSION"));
+            let firmware::io::Version { major, minor, patch } = firmware::VERSION;
+            println!("hal-sim {} (firmware {major}.{minor}.{patch})", env!("CARGO_PKG_VERSION"));
             return ExitCode::SUCCESS;
         }
         Err(e) => {

@@ -243,12 +243,18 @@ pub async fn closed_within(stream: &mut tokio::net::TcpStream, wait: Duration) -
     matches!(tokio::time::timeout(wait, stream.read(&mut byte)).await, Ok(Ok(0) | Err(_)))
 }
 
-/// The firmware crate's version, as hal-sim reports it in registers 256-258.
+/// The firmware version the hal-sim binary was built from, as it reports it
+/// in registers 256-258 (from `hal-sim --version`: `hal-sim X (firmware A.B.C)`).
 pub fn firmware_version() -> [u16; 3] {
-    let manifest = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/Cargo.toml"))
-        .expect("firmware/Cargo.toml");
-    let line = manifest.lines().find(|l| l.starts_with("version = ")).expect("a version line");
-    let version = line.trim_start_matches("version = ").trim_matches('"');
+    let output = std::process::Command::new(binary()).arg("--version").output().expect("hal-sim --version runs");
+    let text = String::from_utf8_lossy(&output.stdout);
+    let version = text
+        .split("(firmware ")
+        .nth(1)
+        .and_then(|rest| rest.split(')').next())
+        .unwrap_or_else(|| panic!("hal-sim --version names the firmware version: {text:?}"));
     let parts: Vec<u16> = version.split('.').map(|p| p.parse().expect("a numeric version")).collect();
+    assert_eq!(parts.len(), 3, "{text:?}");
+    assert_ne!(parts, [0, 0, 0], "a version is set");
     [parts[0], parts[1], parts[2]]
 }

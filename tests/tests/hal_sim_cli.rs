@@ -52,7 +52,8 @@ fn help_and_version_exit_zero() {
     }
     let version = hal_sim(&ns, &["--version"]);
     assert!(version.status.success());
-    assert!(String::from_utf8_lossy(&version.stdout).starts_with("hal-sim "));
+    let text = String::from_utf8_lossy(&version.stdout);
+    assert!(text.starts_with("hal-sim ") && text.contains("(firmware "), "{text}");
 }
 
 #[test]
