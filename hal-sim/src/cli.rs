@@ -30,7 +30,7 @@ usage: hal-sim --tap NAME [--ip CIDR] [--gateway IP] [--port 502] [--max-connect
   --control PATH        a Unix socket for simulated inputs, outputs and robot events
   --robot MODE          demo (default): a robot running a looping program; idle: STANDBY, still
   -h, --help            this text
-  -V, --version         hal-sim's version";
+  -V, --version         hal-sim's version and the firmware version it reports";
 
 /// The device's address unless `--ip` says otherwise.
 pub const DEFAULT_IP: (Ipv4Addr, u8) = (Ipv4Addr::new(198, 18, 0, 2), 24);
