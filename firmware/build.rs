@@ -10,9 +10,10 @@ fn main() {
         return;
     }
     let manifest = PathBuf::from(env::var_os("CARGO_MANIFEST_DIR").unwrap_or_default());
-    // One memory map per board, in its board folder. None may sit in the
-    // workspace root: the linker runs there and would find it first, and
-    // flip-link must see the same memory.x as the linker.
+    // One memory map per board, in its board folder. The workspace root's
+    // memory.x (found first: the linker runs there) includes board-memory.x,
+    // which is the selected board's map, copied here. flip-link follows the
+    // same INCLUDE, so it sees the same RAM region as the linker.
     let memory = if env::var_os("CARGO_FEATURE_NUCLEO_F429ZI").is_some() {
         manifest.join("src/board/nucleo_f429zi/memory.x")
     } else if env::var_os("CARGO_FEATURE_MPS2_AN386").is_some() {
@@ -22,7 +23,8 @@ fn main() {
     };
     println!("cargo:rerun-if-changed={}", memory.display());
     let out = PathBuf::from(env::var_os("OUT_DIR").unwrap_or_default());
-    if let Err(e) = fs::copy(&memory, out.join("memory.x")) {
+    println!("cargo:rerun-if-changed={}", manifest.join("../memory.x").display());
+    if let Err(e) = fs::copy(&memory, out.join("board-memory.x")) {
         println!("cargo:warning=cannot copy {}: {e}", memory.display());
     }
     println!("cargo:rustc-link-search={}", out.display());
