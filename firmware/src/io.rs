@@ -164,14 +164,17 @@ impl RobotStatus {
 
     /// Writes registers 259-264.
     pub fn apply(&self, image: &mut Image) {
-        image.set_registers(reg::ROBOT_STATE, &[
-            self.state as u16,
-            u16::from(self.servo_on),
-            u16::from(self.emergency_stop),
-            self.safety_stop as u16,
-            u16::from(self.direct_teach),
-            u16::from(self.power_button),
-        ]);
+        image.set_registers(
+            reg::ROBOT_STATE,
+            &[
+                self.state as u16,
+                u16::from(self.servo_on),
+                u16::from(self.emergency_stop),
+                self.safety_stop as u16,
+                u16::from(self.direct_teach),
+                u16::from(self.power_button),
+            ],
+        );
     }
 }
 

@@ -92,9 +92,5 @@ fn run(command: &mut Command) -> io::Result<()> {
     if output.status.success() {
         return Ok(());
     }
-    Err(io::Error::other(format!(
-        "{:?} failed: {}",
-        command,
-        String::from_utf8_lossy(&output.stderr).trim()
-    )))
+    Err(io::Error::other(format!("{:?} failed: {}", command, String::from_utf8_lossy(&output.stderr).trim())))
 }

@@ -115,10 +115,7 @@ impl Image {
     /// FC 03: writes `quantity` registers from `start`, big-endian, into `out`.
     pub fn read_registers(&self, start: u16, quantity: u16, out: &mut [u8]) -> Result<usize, Exception> {
         let (first, last) = span(start, usize::from(quantity), REGISTER_COUNT)?;
-        let values = self
-            .registers
-            .get(usize::from(first)..=usize::from(last))
-            .ok_or(Exception::IllegalDataAddress)?;
+        let values = self.registers.get(usize::from(first)..=usize::from(last)).ok_or(Exception::IllegalDataAddress)?;
         let (out, _) = out.as_chunks_mut::<2>();
         let out = out.get_mut(..values.len()).ok_or(Exception::ServerDeviceFailure)?;
         for (dst, value) in out.iter_mut().zip(values) {
@@ -130,9 +127,7 @@ impl Image {
     /// FC 01: packs `quantity` coils from `start` into `out`, LSB first.
     pub fn read_coils(&self, start: u16, quantity: u16, out: &mut [u8]) -> Result<usize, Exception> {
         let (first, last) = span(start, usize::from(quantity), table::COIL_COUNT)?;
-        let out = out
-            .get_mut(..crate::modbus::pdu::coil_bytes(quantity))
-            .ok_or(Exception::ServerDeviceFailure)?;
+        let out = out.get_mut(..crate::modbus::pdu::coil_bytes(quantity)).ok_or(Exception::ServerDeviceFailure)?;
         out.fill(0);
         for row in rows_in(&COILS, first, last, |r| (r.first, r.last)) {
             for address in overlap((row.first, row.last), first, last) {
@@ -190,10 +185,8 @@ impl Image {
                 }
             }
         }
-        let dst = self
-            .registers
-            .get_mut(usize::from(first)..=usize::from(last))
-            .ok_or(Exception::IllegalDataAddress)?;
+        let dst =
+            self.registers.get_mut(usize::from(first)..=usize::from(last)).ok_or(Exception::IllegalDataAddress)?;
         for (dst, value) in dst.iter_mut().zip(values) {
             *dst = u16::from_be_bytes(*value);
         }
@@ -239,11 +232,29 @@ impl Image {
             }
             CoilView::NonZero { register } => {
                 let old = self.register(register);
-                (register, if !on { 0 } else if old == 0 { 1 } else { old })
+                (
+                    register,
+                    if !on {
+                        0
+                    } else if old == 0 {
+                        1
+                    } else {
+                        old
+                    },
+                )
             }
             CoilView::Equals { register, on: value_on, off } => {
                 let old = self.register(register);
-                (register, if on { value_on } else if old == value_on { off } else { old })
+                (
+                    register,
+                    if on {
+                        value_on
+                    } else if old == value_on {
+                        off
+                    } else {
+                        old
+                    },
+                )
             }
         };
         self.set_register(register, value);

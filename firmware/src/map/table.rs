@@ -216,7 +216,14 @@ use Access::{Read, ReadWrite, Reserved, Write};
 use Encoding::*;
 use Update::{Boot, Event, Every100Ms, Master, Never};
 
-const fn r(first: u16, last: u16, access: Access, update: Update, encoding: Encoding, name: &'static str) -> RegisterRow {
+const fn r(
+    first: u16,
+    last: u16,
+    access: Access,
+    update: Update,
+    encoding: Encoding,
+    name: &'static str,
+) -> RegisterRow {
     RegisterRow { first, last, access, update, encoding, name }
 }
 

@@ -132,10 +132,7 @@ impl<T: AsRef<[u8]>> Frame<T> {
 
     /// The PDU: function code and data.
     pub fn pdu(&self) -> &[u8] {
-        self.buffer
-            .as_ref()
-            .get(field::PDU_START..self.frame_len())
-            .unwrap_or(&[])
+        self.buffer.as_ref().get(field::PDU_START..self.frame_len()).unwrap_or(&[])
     }
 }
 
@@ -185,20 +182,12 @@ pub struct Header {
 impl Header {
     /// Reads the header of a checked frame.
     pub fn parse<T: AsRef<[u8]>>(frame: &Frame<T>) -> Self {
-        Self {
-            transaction_id: frame.transaction_id(),
-            protocol_id: frame.protocol_id(),
-            unit_id: frame.unit_id(),
-        }
+        Self { transaction_id: frame.transaction_id(), protocol_id: frame.protocol_id(), unit_id: frame.unit_id() }
     }
 
     /// Writes the header for a PDU of `pdu_len` bytes that is already in place.
     /// Returns the frame's length, or `None` if the PDU is empty or too long.
-    pub fn emit<T: AsRef<[u8]> + AsMut<[u8]>>(
-        &self,
-        frame: &mut Frame<T>,
-        pdu_len: usize,
-    ) -> Option<usize> {
+    pub fn emit<T: AsRef<[u8]> + AsMut<[u8]>>(&self, frame: &mut Frame<T>, pdu_len: usize) -> Option<usize> {
         if pdu_len == 0 || pdu_len > MAX_PDU_LEN || frame.buffer.as_ref().len() < HEADER_LEN + pdu_len {
             return None;
         }

@@ -185,9 +185,7 @@ impl<'a> Request<'a> {
     /// Bytes that [`Request::emit`] writes.
     pub fn buffer_len(&self) -> usize {
         match self {
-            Self::WriteMultipleCoils { values, .. } | Self::WriteMultipleRegisters { values, .. } => {
-                6 + values.len()
-            }
+            Self::WriteMultipleCoils { values, .. } | Self::WriteMultipleRegisters { values, .. } => 6 + values.len(),
             _ => 5,
         }
     }
@@ -371,14 +369,17 @@ mod tests {
     #[test]
     fn parses_captured_requests() {
         let parsed: Vec<_> = PYMODBUS.iter().map(|f| Request::parse(pdu(f.request)).unwrap()).collect();
-        assert_eq!(parsed, [
-            Request::ReadHoldingRegisters { start: 256, quantity: 3 },
-            Request::ReadCoils { start: 16, quantity: 10 },
-            Request::WriteSingleCoil { address: 16, value: true },
-            Request::WriteSingleRegister { address: 128, value: 0x1234 },
-            Request::WriteMultipleCoils { start: 16, quantity: 10, values: &[0x0d, 0x03] },
-            Request::WriteMultipleRegisters { start: 128, quantity: 2, values: &[0x00, 0x0a, 0x01, 0x02] },
-        ]);
+        assert_eq!(
+            parsed,
+            [
+                Request::ReadHoldingRegisters { start: 256, quantity: 3 },
+                Request::ReadCoils { start: 16, quantity: 10 },
+                Request::WriteSingleCoil { address: 16, value: true },
+                Request::WriteSingleRegister { address: 128, value: 0x1234 },
+                Request::WriteMultipleCoils { start: 16, quantity: 10, values: &[0x0d, 0x03] },
+                Request::WriteMultipleRegisters { start: 128, quantity: 2, values: &[0x00, 0x0a, 0x01, 0x02] },
+            ]
+        );
     }
 
     #[test]

@@ -58,7 +58,11 @@ pub async fn listener_task(stack: Stack<'static>, shared: &'static Shared<'stati
 }
 
 /// Spawns `max_connections + 1` listener tasks.
-pub fn spawn_listeners(spawner: Spawner, stack: Stack<'static>, shared: &'static Shared<'static>) -> Result<(), SpawnError> {
+pub fn spawn_listeners(
+    spawner: Spawner,
+    stack: Stack<'static>,
+    shared: &'static Shared<'static>,
+) -> Result<(), SpawnError> {
     for slot in 0..=shared.config().max_connections {
         spawner.spawn(listener_task(stack, shared, slot)?);
     }

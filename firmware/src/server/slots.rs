@@ -34,10 +34,7 @@ impl Default for Slots {
 
 impl Slots {
     pub const fn new() -> Self {
-        Self {
-            active: Mutex::new(RefCell::new([None; SOCKET_POOL])),
-            evict: [const { Signal::new() }; SOCKET_POOL],
-        }
+        Self { active: Mutex::new(RefCell::new([None; SOCKET_POOL])), evict: [const { Signal::new() }; SOCKET_POOL] }
     }
 
     /// Opens slot `id` for a new session. If that makes more than `max`

@@ -29,6 +29,7 @@ use core::cell::RefCell;
 use core::marker::PhantomData;
 use core::sync::atomic::{AtomicU32, Ordering};
 
+use embassy_stm32::Peri;
 use embassy_stm32::adc::{Adc, AnyAdcChannel, SampleTime};
 use embassy_stm32::dac::{DacChannel, Value};
 use embassy_stm32::exti::ExtiInput;
@@ -42,7 +43,6 @@ use embassy_stm32::pac::timer::vals::FilterValue;
 use embassy_stm32::peripherals::{ADC1, TIM3, TIM4};
 use embassy_stm32::timer::low_level::{InputCaptureMode, InputTISelection, Timer};
 use embassy_stm32::timer::{GeneralInstance4Channel, TimerChannel, TimerPin};
-use embassy_stm32::Peri;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;

@@ -10,11 +10,11 @@
 
 use core::sync::atomic::{AtomicU16, Ordering};
 
+use embassy_stm32::Peri;
 use embassy_stm32::pac;
 use embassy_stm32::pac::gpio::regs::Bsrr;
 use embassy_stm32::peripherals::IWDG;
 use embassy_stm32::wdg::IndependentWatchdog;
-use embassy_stm32::Peri;
 use embassy_time::{Duration, Timer};
 
 use crate::io::ANALOG_CHANNELS;
@@ -85,17 +85,8 @@ pub async fn watchdog_task(mut watchdog: IndependentWatchdog<'static, IWDG>) -> 
 }
 
 /// GPIO ports A-I.
-const PORTS: [pac::gpio::Gpio; 9] = [
-    pac::GPIOA,
-    pac::GPIOB,
-    pac::GPIOC,
-    pac::GPIOD,
-    pac::GPIOE,
-    pac::GPIOF,
-    pac::GPIOG,
-    pac::GPIOH,
-    pac::GPIOI,
-];
+const PORTS: [pac::gpio::Gpio; 9] =
+    [pac::GPIOA, pac::GPIOB, pac::GPIOC, pac::GPIOD, pac::GPIOE, pac::GPIOF, pac::GPIOG, pac::GPIOH, pac::GPIOI];
 
 /// Per port, the output pins the fault handler turns off.
 static OUTPUTS: [AtomicU16; PORTS.len()] = [const { AtomicU16::new(0) }; PORTS.len()];

@@ -61,7 +61,9 @@ fn read_coil(image: &Image, address: u16) -> Result<bool, Exception> {
 /// where nothing else is guaranteed valid.
 fn valid_nonzero(address: u16) -> u16 {
     match address {
-        reg::ANALOG_INPUT_1_TYPE | reg::ANALOG_INPUT_2_TYPE | reg::ANALOG_OUTPUT_1_TYPE | reg::ANALOG_OUTPUT_2_TYPE => 1,
+        reg::ANALOG_INPUT_1_TYPE | reg::ANALOG_INPUT_2_TYPE | reg::ANALOG_OUTPUT_1_TYPE | reg::ANALOG_OUTPUT_2_TYPE => {
+            1
+        }
         reg::ANALOG_INPUT_1 | reg::ANALOG_INPUT_2 | reg::ANALOG_OUTPUT_1 | reg::ANALOG_OUTPUT_2 => 1234,
         reg::TOOL_INPUTS | reg::TOOL_OUTPUTS => 0b10_1010,
         reg::ROBOT_STATE => 6,
@@ -186,7 +188,12 @@ fn coil_and_register_views_agree() {
             }
             let mut image = Image::new();
             write_coil(&mut image, first + pin, true, WritePolicy::Seed).unwrap();
-            assert_eq!(image.register(register), 1 << pin, "coil {} sets bit {pin} of register {register}", first + pin);
+            assert_eq!(
+                image.register(register),
+                1 << pin,
+                "coil {} sets bit {pin} of register {register}",
+                first + pin
+            );
         }
     }
     // Robot flags: coil 260-264 = register != 0; coil 262 and 265 both from register 262.
@@ -213,13 +220,23 @@ fn ranges_end_where_the_spaces_end() {
     let mut out = [0u8; 250];
     assert!(image.read_registers(reg::LAST, 1, &mut out).is_ok());
     assert!(image.read_registers(reg::LAST + 1 - 125, 125, &mut out).is_ok());
-    for (start, quantity) in [(reg::LAST, 2), (reg::LAST + 1, 1), (reg::LAST + 2 - 125, 125), (u16::MAX, 1), (u16::MAX, 125)] {
-        assert_eq!(image.read_registers(start, quantity, &mut out), Err(Exception::IllegalDataAddress), "{start}+{quantity}");
+    for (start, quantity) in
+        [(reg::LAST, 2), (reg::LAST + 1, 1), (reg::LAST + 2 - 125, 125), (u16::MAX, 1), (u16::MAX, 125)]
+    {
+        assert_eq!(
+            image.read_registers(start, quantity, &mut out),
+            Err(Exception::IllegalDataAddress),
+            "{start}+{quantity}"
+        );
     }
     assert!(image.read_coils(coil::LAST, 1, &mut out).is_ok());
     assert!(image.read_coils(0, 266, &mut out).is_ok());
     for (start, quantity) in [(coil::LAST, 2), (coil::LAST + 1, 1), (0, 267), (0, 2000), (u16::MAX, 2000)] {
-        assert_eq!(image.read_coils(start, quantity, &mut out), Err(Exception::IllegalDataAddress), "{start}+{quantity}");
+        assert_eq!(
+            image.read_coils(start, quantity, &mut out),
+            Err(Exception::IllegalDataAddress),
+            "{start}+{quantity}"
+        );
     }
     let mut image = Image::new();
     assert_eq!(write_register(&mut image, reg::LAST + 1, 0, WritePolicy::Seed), Err(Exception::IllegalDataAddress));

@@ -34,7 +34,8 @@ fn strict() -> Policy {
 fn captured_requests_get_these_exact_replies() {
     let mut image = Image::new();
     crate::VERSION.apply(&mut image);
-    let [major, minor, patch] = [crate::VERSION.major, crate::VERSION.minor, crate::VERSION.patch].map(u16::to_be_bytes);
+    let [major, minor, patch] =
+        [crate::VERSION.major, crate::VERSION.minor, crate::VERSION.patch].map(u16::to_be_bytes);
     #[rustfmt::skip]
     let want: [&[u8]; 6] = [
         // 03, 6 bytes: registers 256-258 = the firmware version.
@@ -66,7 +67,9 @@ fn captured_requests_get_these_exact_replies() {
     // pymodbus's server answered the writes with the same bytes we do.
     for fixture in &PYMODBUS[2..] {
         let mut reply = [0u8; MAX_ADU_LEN];
-        let Outcome::Reply { len, .. } = respond(fixture.request, &mut reply, &mut Image::new(), &seed()) else { panic!() };
+        let Outcome::Reply { len, .. } = respond(fixture.request, &mut reply, &mut Image::new(), &seed()) else {
+            panic!()
+        };
         assert_eq!(&reply[..len], fixture.reply, "{}", fixture.name);
     }
 }

@@ -77,7 +77,12 @@ fn pdu() -> impl Strategy<Value = Vec<u8>> {
 
 /// One MBAP frame around a PDU (its length field may be out of range if the PDU is huge).
 fn request() -> impl Strategy<Value = Vec<u8>> {
-    (any::<u16>(), prop_oneof![9 => Just(0u16), 1 => any::<u16>()], prop_oneof![3 => Just(1u8), 1 => any::<u8>()], pdu())
+    (
+        any::<u16>(),
+        prop_oneof![9 => Just(0u16), 1 => any::<u16>()],
+        prop_oneof![3 => Just(1u8), 1 => any::<u8>()],
+        pdu(),
+    )
         .prop_map(|(transaction, protocol, unit, pdu)| {
             let mut frame = transaction.to_be_bytes().to_vec();
             frame.extend(protocol.to_be_bytes());
