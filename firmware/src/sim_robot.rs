@@ -269,7 +269,11 @@ impl SimRobot {
             }
             (Event::SafetyStop { .. }, state) if !servo_on(state) => return Err(Refused::ServoOff),
             (Event::SafetyStop { recovery }, state) => {
-                if recovery || state == SafeStop2 { SafeStop2 } else { SafeStop }
+                if recovery || state == SafeStop2 {
+                    SafeStop2
+                } else {
+                    SafeStop
+                }
             }
             (Event::Reset, SafeStop | SafeOff) => Standby,
             (Event::Reset, SafeStop2 | SafeOff2) => return Err(Refused::NeedsRecovery),
@@ -677,8 +681,16 @@ mod tests {
     fn euler_angles_rebuild_the_rotation() {
         for &(a, b, c) in &[(0.3, 1.2, -2.0), (-2.9, 0.4, 1.0), (1.5, 2.8, 3.0), (0.0, 1.0e-3, 0.7)] {
             // Rz(a) Ry(b) Rz(c) as a frame: apply it through DH-like steps.
-            let rz = |f: Frame, t: f32| Frame { x: add(scale(f.x, cosf(t)), scale(f.y, sinf(t))), y: add(scale(f.x, -sinf(t)), scale(f.y, cosf(t))), ..f };
-            let ry = |f: Frame, t: f32| Frame { x: add(scale(f.x, cosf(t)), scale(f.z, -sinf(t))), z: add(scale(f.x, sinf(t)), scale(f.z, cosf(t))), ..f };
+            let rz = |f: Frame, t: f32| Frame {
+                x: add(scale(f.x, cosf(t)), scale(f.y, sinf(t))),
+                y: add(scale(f.x, -sinf(t)), scale(f.y, cosf(t))),
+                ..f
+            };
+            let ry = |f: Frame, t: f32| Frame {
+                x: add(scale(f.x, cosf(t)), scale(f.z, -sinf(t))),
+                z: add(scale(f.x, sinf(t)), scale(f.z, cosf(t))),
+                ..f
+            };
             let frame = rz(ry(rz(Frame::BASE, a), b), c);
             let [ea, eb, ec] = euler_zyz(&frame);
             assert!(close(ea, a, 1e-3) && close(eb, b, 1e-3) && close(ec, c, 1e-3), "{a} {b} {c} -> {ea} {eb} {ec}");
@@ -753,13 +765,21 @@ mod tests {
         // One whole loop, including the ramp from rest.
         for step in 1..=(LOOP_TIME_US / PERIOD_US + 10) {
             let now = robot.telemetry_at(at(start + step * PERIOD_US));
-            let pairs = previous.joint_position.iter().zip(&now.joint_position).zip(previous.joint_velocity.iter().zip(&now.joint_velocity));
+            let pairs = previous
+                .joint_position
+                .iter()
+                .zip(&now.joint_position)
+                .zip(previous.joint_velocity.iter().zip(&now.joint_velocity));
             for ((&p0, &p1), (&v0, &v1)) in pairs {
                 let moved = f32::from(p1 - p0) / 0.1; // 0.1 deg/s
                 let mean = (f32::from(v0) + f32::from(v1)) / 2.0;
                 assert!(close(moved, mean, 12.0 + 0.05 * mean.abs()), "step {step}: moved {moved}, velocity {mean}");
             }
-            let linear = previous.task_pose.iter().zip(&now.task_pose).zip(previous.task_velocity.iter().zip(&now.task_velocity));
+            let linear = previous
+                .task_pose
+                .iter()
+                .zip(&now.task_pose)
+                .zip(previous.task_velocity.iter().zip(&now.task_velocity));
             for ((&p0, &p1), (&v0, &v1)) in linear.take(3) {
                 let moved = f32::from(p1 - p0) / 0.1; // 0.1 mm/s
                 let mean = (f32::from(v0) + f32::from(v1)) / 2.0;
@@ -853,7 +873,10 @@ mod tests {
         assert_eq!((reset.state, reset.servo_on, reset.safety_stop), (RobotState::Standby, true, SafetyStop::No));
         let resumed = robot.status_at(at(now + 20_000_000 + STANDBY_DWELL_US));
         assert_eq!(resumed.state, RobotState::Operating, "the demo program starts again");
-        assert_eq!(robot.event_at(Event::EmergencyStop { pressed: false }, at(now + 21_000_000)), Err(Refused::EmergencyStopNotPressed));
+        assert_eq!(
+            robot.event_at(Event::EmergencyStop { pressed: false }, at(now + 21_000_000)),
+            Err(Refused::EmergencyStopNotPressed)
+        );
     }
 
     #[test]
@@ -865,7 +888,14 @@ mod tests {
         let restart = now + 5_000_000 + STANDBY_DWELL_US;
         let first = robot.telemetry_at(at(restart + 50_000));
         assert!(first.joint_position.iter().zip(&held.joint_position).all(|(a, b)| (a - b).abs() <= 1), "no jump");
-        assert!(first.joint_velocity.iter().zip(&robot.telemetry_at(at(restart + 2_000_000)).joint_velocity).any(|(a, b)| a.abs() < b.abs()), "ramps up");
+        assert!(
+            first
+                .joint_velocity
+                .iter()
+                .zip(&robot.telemetry_at(at(restart + 2_000_000)).joint_velocity)
+                .any(|(a, b)| a.abs() < b.abs()),
+            "ramps up"
+        );
     }
 
     #[test]
@@ -887,13 +917,19 @@ mod tests {
     fn plain_safety_stop_keeps_the_servo_and_resets_to_standby() {
         let (mut robot, now) = operating_for(1_000_000);
         let stopped = robot.event_at(Event::SafetyStop { recovery: false }, at(now)).unwrap();
-        assert_eq!((stopped.state, stopped.servo_on, stopped.safety_stop), (RobotState::SafeStop, true, SafetyStop::Stopped));
+        assert_eq!(
+            (stopped.state, stopped.servo_on, stopped.safety_stop),
+            (RobotState::SafeStop, true, SafetyStop::Stopped)
+        );
         let image = image_of(&stopped);
         assert!(image.coil(coil::SAFETY_STOP) && !image.coil(coil::SAFETY_STOP_RECOVERY));
         assert_eq!(robot.telemetry_at(at(now + 1_000_000)).joint_velocity, [0; 6]);
         assert_eq!(robot.event_at(Event::Reset, at(now + 1_000_000)).unwrap().state, RobotState::Standby);
         robot.event_at(Event::EmergencyStop { pressed: true }, at(now + 1_000_001)).unwrap();
-        assert_eq!(robot.event_at(Event::SafetyStop { recovery: false }, at(now + 1_000_002)), Err(Refused::EmergencyStopPressed));
+        assert_eq!(
+            robot.event_at(Event::SafetyStop { recovery: false }, at(now + 1_000_002)),
+            Err(Refused::EmergencyStopPressed)
+        );
         robot.event_at(Event::EmergencyStop { pressed: false }, at(now + 1_000_003)).unwrap();
         assert_eq!(robot.event_at(Event::SafetyStop { recovery: false }, at(now + 1_000_004)), Err(Refused::ServoOff));
     }
@@ -924,7 +960,10 @@ mod tests {
             (RobotState::Homing, true, false, SafetyStop::No),
         ] {
             let status = robot.event_at(Event::SetState(state), at(0)).unwrap();
-            assert_eq!((status.state, status.servo_on, status.emergency_stop, status.safety_stop), (state, servo, estop, safety));
+            assert_eq!(
+                (status.state, status.servo_on, status.emergency_stop, status.safety_stop),
+                (state, servo, estop, safety)
+            );
         }
         assert_eq!(robot.status_at(at(HOMING_TIME_US)).state, RobotState::Standby, "homing ends");
         robot.event_at(Event::SetState(RobotState::NotReady), at(HOMING_TIME_US)).unwrap();

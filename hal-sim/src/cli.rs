@@ -136,7 +136,10 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
     };
     let max_connections = match max_connections {
         Some(text) => number::<usize>("--max-connections", &text, 1, server::MAX_CONNECTIONS).map_err(|e| {
-            UsageError(format!("{e} (this build serves at most {}; rebuild with MODBUS_MAX_CONNECTIONS=N for more)", server::MAX_CONNECTIONS))
+            UsageError(format!(
+                "{e} (this build serves at most {}; rebuild with MODBUS_MAX_CONNECTIONS=N for more)",
+                server::MAX_CONNECTIONS
+            ))
         })?,
         None => server::MAX_CONNECTIONS,
     };
@@ -158,13 +161,8 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
         Some("idle") => Mode::Idle,
         Some(other) => return error(format!("`--robot` must be demo or idle, not `{other}`")),
     };
-    let config = Config {
-        port,
-        max_connections,
-        policy: Policy { unit_id, write_policy },
-        idle_timeout,
-        ..Config::DEFAULT
-    };
+    let config =
+        Config { port, max_connections, policy: Policy { unit_id, write_policy }, idle_timeout, ..Config::DEFAULT };
     Ok(Action::Run(Options { tap, address, prefix_len, gateway, config, control: control.map(PathBuf::from), robot }))
 }
 
@@ -173,7 +171,8 @@ fn check_interface_name(name: &str) -> Result<(), UsageError> {
     if name.len() > MAX_TAP_NAME_LEN {
         return error(format!("`--tap {name}`: interface names are at most {MAX_TAP_NAME_LEN} bytes"));
     }
-    if name == "." || name == ".." || name.chars().any(|c| c == '/' || c == ':' || c.is_whitespace() || c.is_control()) {
+    if name == "." || name == ".." || name.chars().any(|c| c == '/' || c == ':' || c.is_whitespace() || c.is_control())
+    {
         return error(format!("`--tap {name:?}` is not a valid interface name"));
     }
     Ok(())
@@ -236,8 +235,25 @@ mod tests {
     #[test]
     fn every_option() {
         let o = run(&[
-            "--tap=sim1", "--ip", "198.18.1.9/16", "--gateway", "198.18.0.1", "--port", "1502", "--max-connections", "3",
-            "--idle-timeout", "0", "--unit-id", "17", "--write-policy", "strict", "--control", "/tmp/c.sock", "--robot", "idle",
+            "--tap=sim1",
+            "--ip",
+            "198.18.1.9/16",
+            "--gateway",
+            "198.18.0.1",
+            "--port",
+            "1502",
+            "--max-connections",
+            "3",
+            "--idle-timeout",
+            "0",
+            "--unit-id",
+            "17",
+            "--write-policy",
+            "strict",
+            "--control",
+            "/tmp/c.sock",
+            "--robot",
+            "idle",
         ])
         .unwrap();
         assert_eq!((o.address, o.prefix_len), (Ipv4Addr::new(198, 18, 1, 9), 16));
@@ -248,7 +264,10 @@ mod tests {
         assert_eq!(o.config.policy, Policy { unit_id: Some(17), write_policy: WritePolicy::Strict });
         assert_eq!(o.control, Some(PathBuf::from("/tmp/c.sock")));
         assert_eq!(o.robot, Mode::Idle);
-        assert_eq!(run(&["--tap", "t", "--idle-timeout", "5"]).unwrap().config.idle_timeout, Some(Duration::from_secs(5)));
+        assert_eq!(
+            run(&["--tap", "t", "--idle-timeout", "5"]).unwrap().config.idle_timeout,
+            Some(Duration::from_secs(5))
+        );
     }
 
     #[test]

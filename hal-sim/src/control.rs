@@ -27,21 +27,34 @@ pub const MAX_LINE_LEN: usize = 256;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Command {
     /// `set di N 0|1`: ControlBox digital input N (1..=16).
-    SetDigitalInput { pin: u8, on: bool },
+    SetDigitalInput {
+        pin: u8,
+        on: bool,
+    },
     /// `set tool-di N 0|1`: tool digital input N (1..=6).
-    SetToolInput { pin: u8, on: bool },
+    SetToolInput {
+        pin: u8,
+        on: bool,
+    },
     /// `set ai N VALUE`: analog input N (1..=2), in µA or mV as its type selects.
-    SetAnalogInput { channel: usize, value: u16 },
+    SetAnalogInput {
+        channel: usize,
+        value: u16,
+    },
     /// `get di`, `get tool-di`: the input masks.
     GetDigitalInputs,
     GetToolInputs,
     /// `get ai N`: `ok VALUE TYPE`, as the image holds it.
-    GetAnalogInput { channel: usize },
+    GetAnalogInput {
+        channel: usize,
+    },
     /// `get do`, `get tool-do`: what the output pins are driven to.
     GetDigitalOutputs,
     GetToolOutputs,
     /// `get ao N`: `ok VALUE TYPE`.
-    GetAnalogOutput { channel: usize },
+    GetAnalogOutput {
+        channel: usize,
+    },
     /// `get robot`: registers 259-264.
     GetRobot,
     /// `robot ...`: an event of the simulated robot.
@@ -90,7 +103,9 @@ pub fn parse(line: &str) -> Result<Command, String> {
         ["get", "tool-do"] => Command::GetToolOutputs,
         ["get", "ao", n] => Command::GetAnalogOutput { channel: channel(n)? },
         ["get", "robot"] => Command::GetRobot,
-        ["get", ..] => return Err("usage: get di | get tool-di | get ai N | get do | get tool-do | get ao N | get robot".into()),
+        ["get", ..] => {
+            return Err("usage: get di | get tool-di | get ai N | get do | get tool-do | get ao N | get robot".into());
+        }
         ["robot", rest @ ..] => Command::Robot(robot_event(rest)?),
         ["help"] => Command::Help,
         [] => return Err("empty command".into()),

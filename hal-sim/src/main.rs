@@ -67,7 +67,11 @@ fn main() -> ExitCode {
 }
 
 /// Builds the stack and the board, and runs the executor forever.
-fn run(options: Options, device: TunTapDevice, control: Option<async_io::Async<std::os::unix::net::UnixListener>>) -> ! {
+fn run(
+    options: Options,
+    device: TunTapDevice,
+    control: Option<async_io::Async<std::os::unix::net::UnixListener>>,
+) -> ! {
     let net_config = embassy_net::Config::ipv4_static(StaticConfigV4 {
         address: Ipv4Cidr::new(options.address, options.prefix_len),
         gateway: options.gateway,
@@ -149,7 +153,9 @@ fn tap_error(tap: &str, e: &std::io::Error) -> String {
              your user and /dev/net/tun open to you (most distributions make it mode 0666; if `ls -l /dev/net/tun` \
              shows crw-------, `sudo chmod 0666 /dev/net/tun`)"
             .to_owned(),
-        _ => "opening a TAP needs the CAP_NET_ADMIN privilege (root), or a TAP made beforehand for your user".to_owned(),
+        _ => {
+            "opening a TAP needs the CAP_NET_ADMIN privilege (root), or a TAP made beforehand for your user".to_owned()
+        }
     };
     format!(
         "hal-sim: cannot open TAP {tap}: {e}\n\
@@ -168,7 +174,15 @@ fn init_logging() {
     env_logger::Builder::from_env(env_logger::Env::default().default_filter_or("info"))
         .format(move |out, record| {
             let t = start.elapsed();
-            writeln!(out, "[{:>4}.{:03} {:<5} {}] {}", t.as_secs(), t.subsec_millis(), record.level(), record.target(), record.args())
+            writeln!(
+                out,
+                "[{:>4}.{:03} {:<5} {}] {}",
+                t.as_secs(),
+                t.subsec_millis(),
+                record.level(),
+                record.target(),
+                record.args()
+            )
         })
         .init();
 }

@@ -161,7 +161,8 @@ impl HalSim {
         std::thread::scope(|scope| {
             let thread = scope.spawn(|| {
                 self.ns.enter().expect("the test thread enters the namespace");
-                let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("a tokio runtime");
+                let runtime =
+                    tokio::runtime::Builder::new_current_thread().enable_all().build().expect("a tokio runtime");
                 match runtime.block_on(async { tokio::time::timeout(TEST_TIMEOUT, test()).await }) {
                     Ok(value) => value,
                     Err(_) => panic!("the client side did not finish in {TEST_TIMEOUT:?} (hal-sim stuck or dead?)"),

@@ -47,7 +47,18 @@ fn help_and_version_exit_zero() {
     let help = hal_sim(&ns, &["--help"]);
     assert!(help.status.success());
     let text = String::from_utf8_lossy(&help.stdout);
-    for option in ["--tap", "--ip", "--gateway", "--port", "--max-connections", "--idle-timeout", "--unit-id", "--write-policy", "--control", "--robot"] {
+    for option in [
+        "--tap",
+        "--ip",
+        "--gateway",
+        "--port",
+        "--max-connections",
+        "--idle-timeout",
+        "--unit-id",
+        "--write-policy",
+        "--control",
+        "--robot",
+    ] {
         assert!(text.contains(option), "{option} in --help");
     }
     let version = hal_sim(&ns, &["--version"]);

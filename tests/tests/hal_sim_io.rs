@@ -101,7 +101,8 @@ fn the_control_socket_answers_every_line() {
     stream.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
     // Several commands in one write, one of them long, CRLF line ends.
     let long = "x".repeat(1000);
-    let batch = format!("set di 2 1\r\nbogus\n{long}\nget di\nset di 99 1\nget ao 3\nset tool-di 1 2\nrobot dance\nhelp\n\n");
+    let batch =
+        format!("set di 2 1\r\nbogus\n{long}\nget di\nset di 99 1\nget ao 3\nset tool-di 1 2\nrobot dance\nhelp\n\n");
     stream.write_all(batch.as_bytes()).unwrap();
     let mut reader = BufReader::new(stream.try_clone().unwrap());
     let mut replies = Vec::new();

@@ -179,7 +179,9 @@ fn reserved_addresses_read_zero_and_refuse_writes() {
     sim.run(|| async {
         use ExceptionCode::IllegalDataAddress;
         let mut ctx = sim.connect().await;
-        for (start, count) in [(2u16, 2u16), (8, 8), (20, 1), (23, 105), (265, 5), (276, 4), (316, 84), (406, 4), (426, 4)] {
+        for (start, count) in
+            [(2u16, 2u16), (8, 8), (20, 1), (23, 105), (265, 5), (276, 4), (316, 84), (406, 4), (426, 4)]
+        {
             let values = ctx.read_holding_registers(start, count).await.unwrap().unwrap();
             assert!(values.iter().all(|&v| v == 0), "registers {start}+{count}: {values:?}");
         }
@@ -190,7 +192,11 @@ fn reserved_addresses_read_zero_and_refuse_writes() {
         assert_eq!(ctx.write_multiple_registers(1, &[0, 0, 0]).await.unwrap(), Err(IllegalDataAddress));
         assert_eq!(ctx.read_holding_registers(1, 1).await.unwrap().unwrap(), [0x00ff], "nothing written");
         for address in [2u16, 3, 8, 15, 20, 23, 127, 265, 269, 276, 316, 399, 406, 416, 426, 429] {
-            assert_eq!(ctx.write_single_register(address, 0).await.unwrap(), Err(IllegalDataAddress), "register {address}");
+            assert_eq!(
+                ctx.write_single_register(address, 0).await.unwrap(),
+                Err(IllegalDataAddress),
+                "register {address}"
+            );
         }
         for address in [44u16, 100, 259] {
             assert_eq!(ctx.write_single_coil(address, false).await.unwrap(), Err(IllegalDataAddress), "coil {address}");

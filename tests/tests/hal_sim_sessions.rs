@@ -14,10 +14,7 @@ const REPLY_WAIT: Duration = Duration::from_secs(2);
 
 /// Whether a tokio-modbus context's connection has been closed by the server.
 async fn is_closed(ctx: &mut tokio_modbus::client::Context) -> bool {
-    matches!(
-        tokio::time::timeout(REPLY_WAIT, ctx.read_holding_registers(128, 1)).await,
-        Ok(Err(_)) | Err(_)
-    )
+    matches!(tokio::time::timeout(REPLY_WAIT, ctx.read_holding_registers(128, 1)).await, Ok(Err(_)) | Err(_))
 }
 
 #[test]
@@ -48,7 +45,11 @@ fn eight_clients_are_served_and_a_ninth_evicts_the_idlest() {
             if i == 3 {
                 assert!(is_closed(ctx).await, "the idlest client is evicted");
             } else {
-                assert_eq!(ctx.read_holding_registers(128 + i as u16, 1).await.unwrap().unwrap(), [i as u16], "client {i}");
+                assert_eq!(
+                    ctx.read_holding_registers(128 + i as u16, 1).await.unwrap().unwrap(),
+                    [i as u16],
+                    "client {i}"
+                );
             }
         }
         ninth.read_holding_registers(128, 8).await.unwrap().unwrap();
