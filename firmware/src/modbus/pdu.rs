@@ -57,6 +57,16 @@ function_codes! {
     WriteMultipleRegisters = 0x10,
 }
 
+impl FunctionCode {
+    /// Whether the function changes the map (05, 06, 0F, 10).
+    pub const fn is_write(self) -> bool {
+        matches!(
+            self,
+            Self::WriteSingleCoil | Self::WriteSingleRegister | Self::WriteMultipleCoils | Self::WriteMultipleRegisters
+        )
+    }
+}
+
 /// The bit that marks an exception response's function code.
 pub const EXCEPTION_FLAG: u8 = 0x80;
 /// Read Coils: most coils in one request (6.1).
@@ -179,7 +189,7 @@ impl<'a> Request<'a> {
 
     /// Whether this request changes the map.
     pub fn is_write(&self) -> bool {
-        !matches!(self, Self::ReadCoils { .. } | Self::ReadHoldingRegisters { .. })
+        self.function().is_write()
     }
 
     /// Bytes that [`Request::emit`] writes.

@@ -6,7 +6,7 @@
 use crate::map::{Image, WritePolicy, Written};
 use crate::modbus::mbap::{self, Frame, Header, MAX_ADU_LEN};
 use crate::modbus::pdu::{self, EXCEPTION_FLAG};
-use crate::modbus::{Exception, Request, Response};
+use crate::modbus::{Exception, FunctionCode, Request, Response};
 
 /// How requests are answered.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -16,6 +16,9 @@ pub struct Policy {
     /// reply exception 0B to any other.
     pub unit_id: Option<u8>,
     pub write_policy: WritePolicy,
+    /// The client may not write: its write functions (05, 06, 0F, 10) get
+    /// exception 01, as functions it is not allowed (see [`super::access`]).
+    pub read_only: bool,
 }
 
 /// Unit ids a configured server always answers (broadcast-ish 0, and 0xFF,
@@ -27,7 +30,7 @@ pub const ALWAYS_ANSWERED_UNITS: [u8; 2] = [0x00, 0xFF];
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Outcome {
     /// Send the first `len` bytes of the reply buffer.
-    Reply { len: usize, written: Written, exception: Option<Exception> },
+    Reply { len: usize, function: FunctionCode, written: Written, exception: Option<Exception> },
     /// The protocol id is not Modbus: no reply, the connection carries on.
     Discard { protocol_id: u16 },
 }
@@ -40,23 +43,27 @@ pub fn respond(frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], image: &mut Image, p
         return Outcome::Discard { protocol_id: header.protocol_id };
     }
     let pdu = request.pdu();
+    // The length field is at least 2, so a frame always carries a function code.
+    let code = pdu.first().copied().unwrap_or(0);
+    let function = FunctionCode::from(code);
     let mut out = Frame::new_unchecked(&mut reply[..]);
     let result = match policy.unit_id {
         Some(id) if header.unit_id != id && !ALWAYS_ANSWERED_UNITS.contains(&header.unit_id) => {
             Err(Exception::GatewayTargetDeviceFailedToRespond)
         }
+        _ if policy.read_only && function.is_write() => Err(Exception::IllegalFunction),
         _ => execute(pdu, out.payload_mut(), image, policy.write_policy),
     };
     let (pdu_len, written, exception) = match result {
         Ok((len, written)) => (len, written, None),
         Err(exception) => {
-            let function = pdu.first().copied().unwrap_or(0) & !EXCEPTION_FLAG;
+            let function = code & !EXCEPTION_FLAG;
             let len = Response::Exception { function, exception }.emit(out.payload_mut()).unwrap_or(0);
             (len, Written::default(), Some(exception))
         }
     };
     let len = header.emit(&mut out, pdu_len).unwrap_or(0);
-    Outcome::Reply { len, written, exception }
+    Outcome::Reply { len, function, written, exception }
 }
 
 /// Executes a request PDU against the image; writes the response PDU into `out`.

@@ -1,12 +1,14 @@
 //! Accepting Modbus TCP clients on an embassy-net stack: one task per socket,
 //! one more socket than sessions so a new client is never refused.
 
+use core::fmt;
 use embassy_executor::{SpawnError, Spawner};
-use embassy_net::Stack;
+
 use embassy_net::tcp::TcpSocket;
+use embassy_net::{IpAddress, IpEndpoint, Stack};
 use embassy_time::{Duration, Instant, with_timeout};
 
-use super::{SOCKET_POOL, Shared, SlotId, serve};
+use super::{SOCKET_POOL, Shared, SlotId, Stats, serve};
 
 /// Receive buffer of each TCP socket: room for several pipelined requests.
 pub const SOCKET_RX_LEN: usize = 1024;
@@ -20,6 +22,9 @@ const TCP_TIMEOUT: Duration = Duration::from_secs(60);
 const CLOSE_TIMEOUT: Duration = Duration::from_secs(1);
 
 /// Accepts clients on `slot`'s socket and serves them, one at a time, forever.
+///
+/// A client outside the connect allow-list is reset at once; one outside
+/// the write allow-list is served read-only.
 pub async fn listen(stack: Stack<'_>, shared: &Shared<'_>, slot: SlotId) -> ! {
     let mut rx = [0u8; SOCKET_RX_LEN];
     let mut tx = [0u8; SOCKET_TX_LEN];
@@ -33,21 +38,68 @@ pub async fn listen(stack: Stack<'_>, shared: &Shared<'_>, slot: SlotId) -> ! {
             warn!("slot {}: accept failed: {:?}", slot, e);
             continue;
         }
-        if let Some(peer) = socket.remote_endpoint() {
-            info!("slot {}: connection from {}", slot, peer);
+        let peer = Peer::of(socket.remote_endpoint());
+        if !peer.address.is_some_and(|address| config.access.may_connect(address)) {
+            Stats::count(&shared.stats().refused_connections);
+            info!("slot {}: refused {} (not in the connect allow-list)", slot, peer);
+            socket.abort();
+            let _ = with_timeout(CLOSE_TIMEOUT, socket.flush()).await;
+            continue;
         }
-        if let Some(victim) = shared.slots().open(slot, config.max_connections, Instant::now()) {
+        let read_only = !peer.address.is_some_and(|address| config.access.may_write(address));
+        info!("slot {}: connection from {}{}", slot, peer, if read_only { " (read-only)" } else { "" });
+        if let Some(victim) = shared.slots().open(slot, config.max_connections, Instant::now(), read_only) {
+            Stats::count(&shared.stats().evictions);
             info!("slot {}: all sessions busy, closing the idlest (slot {})", slot, victim);
         }
         match serve(&mut socket, shared, slot).await {
-            Ok(()) => info!("slot {}: closed by the client", slot),
-            Err(e) => info!("slot {}: closing: {}", slot, e),
+            Ok(()) => info!("slot {}: {} closed the connection", slot, peer),
+            Err(e) => info!("slot {}: closing {}: {}", slot, peer, e),
         }
         shared.slots().close(slot);
         socket.close();
         let _ = with_timeout(CLOSE_TIMEOUT, socket.flush()).await;
         socket.abort();
         let _ = with_timeout(CLOSE_TIMEOUT, socket.flush()).await;
+    }
+}
+
+/// A client's IPv4 address (`None`: not IPv4, never allowed) and port, as
+/// logs show it. Formatted octet by octet so the boards' defmt logs do not
+/// pull in `core::fmt`'s IP printing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Peer {
+    address: Option<[u8; 4]>,
+    port: u16,
+}
+
+impl Peer {
+    fn of(endpoint: Option<IpEndpoint>) -> Self {
+        #[allow(unreachable_patterns, reason = "IPv6 exists only when another crate enables it")]
+        let address = endpoint.and_then(|endpoint| match endpoint.addr {
+            IpAddress::Ipv4(address) => Some(address.octets()),
+            _ => None,
+        });
+        Self { address, port: endpoint.map_or(0, |endpoint| endpoint.port) }
+    }
+}
+
+impl fmt::Display for Peer {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.address {
+            Some([a, b, c, d]) => write!(f, "{a}.{b}.{c}.{d}:{}", self.port),
+            None => write!(f, "a non-IPv4 client"),
+        }
+    }
+}
+
+#[cfg(feature = "defmt")]
+impl defmt::Format for Peer {
+    fn format(&self, f: defmt::Formatter<'_>) {
+        match self.address {
+            Some([a, b, c, d]) => defmt::write!(f, "{}.{}.{}.{}:{}", a, b, c, d, self.port),
+            None => defmt::write!(f, "a non-IPv4 client"),
+        }
     }
 }
 

@@ -1,21 +1,27 @@
 //! The Modbus TCP server: request handling, sessions, connection slots and the
 //! embassy-net listener, shared by every board and by hal-sim.
 
+pub mod access;
 pub mod handler;
 mod listener;
 mod session;
 mod slots;
+mod stats;
+mod watchdog;
 
 use core::cell::RefCell;
 
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use embassy_time::{Duration, Ticker};
+use embassy_time::{Duration, Instant, Ticker};
 
+pub use access::{Access, AllowList, Network};
 pub use handler::{Outcome, Policy};
 pub use listener::{SOCKET_RX_LEN, SOCKET_TX_LEN, listen, listener_task, spawn_listeners};
 pub use session::{Error, SESSION_BUFFER_LEN, serve};
 pub use slots::{SlotId, Slots};
+pub use stats::{Counters, Stats};
+pub use watchdog::{SafeState, Watchdog};
 
 use crate::io::{self, InputPins, OutputPins, Outputs, Robot, RobotStatus, Version};
 use crate::map::Image;
@@ -65,16 +71,23 @@ pub struct Config {
     pub idle_timeout: Option<Duration>,
     /// A frame that has started must be complete within this time.
     pub frame_timeout: Duration,
+    /// Who may connect and who may write.
+    pub access: Access,
+    /// The communication watchdog and the outputs' safe state.
+    pub watchdog: Watchdog,
 }
 
 impl Config {
-    /// Port 502, 8 connections, every unit id, `seed` writes, 60 s idle, 2 s per frame.
+    /// Port 502, 8 connections, every unit id, `seed` writes, 60 s idle, 2 s
+    /// per frame, everyone may connect and write, no watchdog.
     pub const DEFAULT: Self = Self {
         port: MODBUS_PORT,
         max_connections: MAX_CONNECTIONS,
-        policy: Policy { unit_id: None, write_policy: crate::map::WritePolicy::Seed },
+        policy: Policy { unit_id: None, write_policy: crate::map::WritePolicy::Seed, read_only: false },
         idle_timeout: Some(IDLE_TIMEOUT),
         frame_timeout: FRAME_TIMEOUT,
+        access: Access::OPEN,
+        watchdog: Watchdog::OFF,
     };
 }
 
@@ -84,15 +97,24 @@ impl Default for Config {
     }
 }
 
+/// What the image lock guards: the image, and the watchdog's view of the
+/// requests that change or read it.
+struct State {
+    image: Image,
+    monitor: watchdog::Monitor,
+}
+
 /// Everything the sessions and tasks share: the process image behind a
 /// blocking mutex (held while one request is applied, never across an
-/// `.await`), the board's outputs, the configuration and the session slots.
+/// `.await`), the board's outputs, the configuration, the session slots and
+/// the diagnostics counters.
 pub struct Shared<'a> {
-    image: Mutex<CriticalSectionRawMutex, RefCell<Image>>,
+    state: Mutex<CriticalSectionRawMutex, RefCell<State>>,
     outputs: &'a dyn OutputPins,
     config: Config,
     version: Version,
     slots: Slots,
+    stats: Stats,
 }
 
 impl core::fmt::Debug for Shared<'_> {
@@ -107,7 +129,15 @@ impl<'a> Shared<'a> {
         let mut image = Image::new();
         version.apply(&mut image);
         let config = Config { max_connections: config.max_connections.clamp(1, MAX_CONNECTIONS), ..config };
-        Self { image: Mutex::new(RefCell::new(image)), outputs, config, version, slots: Slots::new() }
+        let state = State { image, monitor: watchdog::Monitor::new(Instant::now()) };
+        Self {
+            state: Mutex::new(RefCell::new(state)),
+            outputs,
+            config,
+            version,
+            slots: Slots::new(),
+            stats: Stats::new(),
+        }
     }
 
     /// The configuration in force.
@@ -120,30 +150,74 @@ impl<'a> Shared<'a> {
         &self.slots
     }
 
-    /// Answers one request frame into `reply`, and drives the outputs at once
-    /// if the request changed them.
+    /// The diagnostics counters.
+    pub fn stats(&self) -> &Stats {
+        &self.stats
+    }
+
+    /// Answers one request frame into `reply` under the configured policy.
     pub fn respond(&self, frame: &[u8], reply: &mut [u8; MAX_ADU_LEN]) -> Outcome {
-        self.image.lock(|image| {
-            let mut image = image.borrow_mut();
-            let outcome = handler::respond(frame, reply, &mut image, &self.config.policy);
-            if let Outcome::Reply { written, .. } = outcome
-                && written.outputs
-            {
-                self.outputs.drive(&Outputs::from_image(&image));
+        self.respond_as(frame, reply, &self.config.policy)
+    }
+
+    /// Answers one request frame into `reply` under `policy` (the
+    /// configured one, narrowed for the client), drives the outputs at once
+    /// if the request changed them, feeds the watchdog and counts.
+    pub fn respond_as(&self, frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], policy: &Policy) -> Outcome {
+        let outcome = self.state.lock(|state| {
+            let state = &mut *state.borrow_mut();
+            let outcome = handler::respond(frame, reply, &mut state.image, policy);
+            if let Outcome::Reply { written, exception, .. } = outcome {
+                if written.outputs {
+                    self.outputs.drive(&Outputs::from_image(&state.image));
+                }
+                if exception.is_none() && self.config.watchdog.timeout.is_some() {
+                    state.monitor.valid_request(Instant::now());
+                }
             }
             outcome
-        })
+        });
+        match outcome {
+            Outcome::Reply { function, exception, .. } => {
+                Stats::count(&self.stats.requests);
+                if let Some(exception) = exception {
+                    self.stats.count_exception(exception, policy.read_only && function.is_write());
+                }
+            }
+            Outcome::Discard { .. } => Stats::count(&self.stats.bad_protocol),
+        }
+        outcome
     }
 
     /// Reads the image.
     pub fn read<R>(&self, f: impl FnOnce(&Image) -> R) -> R {
-        self.image.lock(|image| f(&image.borrow()))
+        self.state.lock(|state| f(&state.borrow().image))
     }
 
     /// Changes the image from a source (an input edge, a robot event): the
     /// "event" update class. Bypasses the write policy.
     pub fn update<R>(&self, f: impl FnOnce(&mut Image) -> R) -> R {
-        self.image.lock(|image| f(&mut image.borrow_mut()))
+        self.state.lock(|state| f(&mut state.borrow_mut().image))
+    }
+
+    /// Puts the outputs in their safe state if no valid request has come for
+    /// the watchdog's timeout (once per silence). Returns whether it tripped.
+    pub fn check_watchdog(&self) -> bool {
+        let Some(timeout) = self.config.watchdog.timeout else { return false };
+        let tripped = self.state.lock(|state| {
+            let state = &mut *state.borrow_mut();
+            let trips = state.monitor.check(Instant::now(), timeout);
+            if trips {
+                self.config.watchdog.safe_state.apply(&mut state.image);
+                self.outputs.drive(&Outputs::from_image(&state.image));
+            }
+            trips
+        });
+        if tripped {
+            Stats::count(&self.stats.watchdog_trips);
+            warn!("watchdog: no valid request for {} ms: outputs in their safe state", timeout.as_millis());
+        }
+        tripped
     }
 
     /// An edge on the ControlBox digital inputs (bit n = input n + 1): an event.
@@ -179,7 +253,7 @@ impl<'a> Shared<'a> {
 
     /// Drives the outputs from the image (at start-up, or after a fault).
     pub fn drive_outputs(&self) {
-        self.image.lock(|image| self.outputs.drive(&Outputs::from_image(&image.borrow())));
+        self.read(|image| self.outputs.drive(&Outputs::from_image(image)));
     }
 
     /// One refresh: samples every source and re-asserts every source-backed
@@ -207,15 +281,19 @@ impl<'a> Shared<'a> {
     }
 }
 
-/// The 100 ms task's body: refresh, then wait for the next period. Each
-/// binary wraps it in a task with its own pins and robot.
+/// The 100 ms task's body: refresh, check the communication watchdog, then
+/// wait for the next period. Each binary wraps it in a task with its own
+/// pins and robot.
 pub async fn refresh_loop(shared: &Shared<'_>, inputs: &mut impl InputPins, robot: &mut impl Robot) -> ! {
     let mut ticker = Ticker::every(REFRESH_PERIOD);
     loop {
         shared.refresh(inputs, robot);
+        shared.check_watchdog();
         ticker.next().await;
     }
 }
 
 #[cfg(test)]
 pub(crate) mod testing;
+#[cfg(test)]
+mod tests;

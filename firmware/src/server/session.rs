@@ -8,8 +8,12 @@ use embassy_futures::select::{Either, select};
 use embassy_time::{Instant, with_deadline};
 use embedded_io_async::{Read, Write};
 
-use super::{Outcome, Shared, SlotId};
-use crate::modbus::mbap::{self, MAX_ADU_LEN};
+use super::{Outcome, Policy, Shared, SlotId, Stats};
+use crate::modbus::be_u16;
+use crate::modbus::mbap::{self, HEADER_LEN, MAX_ADU_LEN};
+
+/// Where a request's first address sits in its frame (after the function code).
+const ADDRESS: usize = HEADER_LEN + 1;
 
 /// Receive buffer of a session: one whole ADU always fits behind a partial one
 /// once the consumed bytes are dropped.
@@ -53,8 +57,24 @@ impl<E: fmt::Debug> core::error::Error for Error<E> {}
 /// Every whole frame in the buffer is answered in order before reading more,
 /// so pipelined requests each get a reply; a frame split across reads waits
 /// for its remaining bytes, at most `frame_timeout`.
+///
+/// The client's rights come from its slot ([`super::Slots::open`]); bad
+/// lengths and timeouts are counted in [`Shared::stats`].
 pub async fn serve<S: Read + Write>(stream: &mut S, shared: &Shared<'_>, slot: SlotId) -> Result<(), Error<S::Error>> {
+    let result = run(stream, shared, slot).await;
+    let stats = shared.stats();
+    match result {
+        Err(Error::BadLength(_)) => Stats::count(&stats.bad_length),
+        Err(Error::IdleTimeout | Error::FrameTimeout) => Stats::count(&stats.timeouts),
+        _ => {}
+    }
+    result
+}
+
+async fn run<S: Read + Write>(stream: &mut S, shared: &Shared<'_>, slot: SlotId) -> Result<(), Error<S::Error>> {
     let config = shared.config();
+    let read_only = config.policy.read_only || shared.slots().read_only(slot);
+    let policy = Policy { read_only, ..config.policy };
     let mut rx = [0u8; SESSION_BUFFER_LEN];
     let mut reply = [0u8; MAX_ADU_LEN];
     let mut filled = 0;
@@ -72,10 +92,14 @@ pub async fn serve<S: Read + Write>(stream: &mut S, shared: &Shared<'_>, slot: S
                 Err(mbap::Error::Truncated) => break,
             };
             let frame = pending.get(..len).unwrap_or(&[]);
-            match shared.respond(frame, &mut reply) {
-                Outcome::Reply { len, exception, .. } => {
+            match shared.respond_as(frame, &mut reply, &policy) {
+                Outcome::Reply { len, function, exception, .. } => {
+                    let code = u8::from(function);
+                    let address = be_u16(frame, ADDRESS).unwrap_or(0);
                     if let Some(exception) = exception {
-                        debug!("slot {}: exception {:?}", slot, exception);
+                        info!("slot {}: function {:#x} at {}: {}", slot, code, address, exception);
+                    } else if function.is_write() {
+                        debug!("slot {}: function {:#x} wrote at {}", slot, code, address);
                     }
                     let out = reply.get(..len).unwrap_or(&[]);
                     let deadline = config.idle_timeout.map(|t| Instant::now() + t);

@@ -14,9 +14,16 @@ use super::SOCKET_POOL;
 /// Which slot (and listener task) a session runs in: `0..SOCKET_POOL`.
 pub type SlotId = usize;
 
-/// One entry per socket: `Some(last request)` while a session is open.
+/// An open session: its last request and what its client may do.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Entry {
+    last: Instant,
+    read_only: bool,
+}
+
+/// One entry per socket while a session is open.
 pub struct Slots {
-    active: Mutex<CriticalSectionRawMutex, RefCell<[Option<Instant>; SOCKET_POOL]>>,
+    active: Mutex<CriticalSectionRawMutex, RefCell<[Option<Entry>; SOCKET_POOL]>>,
     evict: [Signal<CriticalSectionRawMutex, ()>; SOCKET_POOL],
 }
 
@@ -37,16 +44,17 @@ impl Slots {
         Self { active: Mutex::new(RefCell::new([None; SOCKET_POOL])), evict: [const { Signal::new() }; SOCKET_POOL] }
     }
 
-    /// Opens slot `id` for a new session. If that makes more than `max`
-    /// sessions, the one idle the longest is told to close; its id is returned.
-    pub fn open(&self, id: SlotId, max: usize, now: Instant) -> Option<SlotId> {
+    /// Opens slot `id` for a new session (`read_only`: its client may not
+    /// write). If that makes more than `max` sessions, the one idle the
+    /// longest is told to close; its id is returned.
+    pub fn open(&self, id: SlotId, max: usize, now: Instant, read_only: bool) -> Option<SlotId> {
         if let Some(signal) = self.evict.get(id) {
             signal.reset();
         }
         let victim = self.active.lock(|active| {
             let mut active = active.borrow_mut();
             let slot = active.get_mut(id)?;
-            *slot = Some(now);
+            *slot = Some(Entry { last: now, read_only });
             let open = active.iter().filter(|s| s.is_some()).count();
             if open <= max {
                 return None;
@@ -55,7 +63,7 @@ impl Slots {
                 .iter()
                 .enumerate()
                 .filter(|&(other, _)| other != id)
-                .filter_map(|(other, last)| last.map(|last| (last, other)))
+                .filter_map(|(other, entry)| entry.map(|entry| (entry.last, other)))
                 .min()?;
             Some(idlest.1)
         });
@@ -68,8 +76,8 @@ impl Slots {
     /// Records a request on slot `id`.
     pub fn touch(&self, id: SlotId, now: Instant) {
         self.active.lock(|active| {
-            if let Some(Some(last)) = active.borrow_mut().get_mut(id) {
-                *last = now;
+            if let Some(Some(entry)) = active.borrow_mut().get_mut(id) {
+                entry.last = now;
             }
         });
     }
@@ -93,7 +101,12 @@ impl Slots {
 
     /// When the newest request (or connection) on any open session arrived.
     pub fn last_activity(&self) -> Option<Instant> {
-        self.active.lock(|active| active.borrow().iter().flatten().max().copied())
+        self.active.lock(|active| active.borrow().iter().flatten().map(|entry| entry.last).max())
+    }
+
+    /// Whether slot `id`'s client may not write (false for a slot not open).
+    pub fn read_only(&self, id: SlotId) -> bool {
+        self.active.lock(|active| active.borrow().get(id).copied().flatten().is_some_and(|entry| entry.read_only))
     }
 
     /// Sessions open now.
@@ -113,7 +126,6 @@ impl Slots {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use embassy_time::Duration;
 
     fn at(ms: u64) -> Instant {
         Instant::from_millis(ms)
@@ -123,10 +135,10 @@ mod tests {
     fn the_idlest_session_makes_room() {
         let slots = Slots::new();
         for id in 0..8 {
-            assert_eq!(slots.open(id, 8, at(100 + id as u64)), None);
+            assert_eq!(slots.open(id, 8, at(100 + id as u64), false), None);
         }
         slots.touch(0, at(1_000)); // slot 1 is now the idlest
-        assert_eq!(slots.open(8, 8, at(2_000)), Some(1));
+        assert_eq!(slots.open(8, 8, at(2_000), false), Some(1));
         assert!(slots.evict[1].signaled());
         assert!(!slots.evict[0].signaled());
         slots.close(1);
@@ -136,21 +148,32 @@ mod tests {
     #[test]
     fn a_reused_slot_forgets_an_old_eviction() {
         let slots = Slots::new();
-        slots.open(0, 1, at(0));
-        assert_eq!(slots.open(1, 1, at(10)), Some(0));
+        slots.open(0, 1, at(0), false);
+        assert_eq!(slots.open(1, 1, at(10), false), Some(0));
         slots.close(0);
-        assert_eq!(slots.open(0, 1, at(20)), Some(1));
+        assert_eq!(slots.open(0, 1, at(20), false), Some(1));
         assert!(!slots.evict[0].signaled(), "slot 0's new session is not evicted");
         assert!(slots.evict[1].signaled());
-        let _ = Duration::from_millis(0);
+    }
+
+    #[test]
+    fn each_session_keeps_its_clients_rights() {
+        let slots = Slots::new();
+        slots.open(0, 8, at(0), true);
+        slots.open(1, 8, at(0), false);
+        assert!(slots.read_only(0) && !slots.read_only(1));
+        assert!(!slots.read_only(2) && !slots.read_only(SOCKET_POOL), "no session, no restriction to report");
+        slots.close(0);
+        slots.open(0, 8, at(1), false);
+        assert!(!slots.read_only(0), "a new client on the same slot has its own rights");
     }
 
     #[test]
     fn evict_all_reaches_open_sessions_only() {
         let slots = Slots::new();
         assert_eq!(slots.last_activity(), None);
-        slots.open(0, 8, at(5));
-        slots.open(2, 8, at(7));
+        slots.open(0, 8, at(5), false);
+        slots.open(2, 8, at(7), false);
         slots.touch(0, at(9));
         assert_eq!(slots.last_activity(), Some(at(9)));
         slots.evict_all();
@@ -164,7 +187,7 @@ mod tests {
     #[test]
     fn out_of_range_ids_are_ignored() {
         let slots = Slots::new();
-        assert_eq!(slots.open(SOCKET_POOL, 1, at(0)), None);
+        assert_eq!(slots.open(SOCKET_POOL, 1, at(0), false), None);
         slots.touch(SOCKET_POOL, at(0));
         slots.close(SOCKET_POOL);
         assert_eq!(slots.open_count(), 0);

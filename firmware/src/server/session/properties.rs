@@ -103,8 +103,12 @@ fn stream() -> impl Strategy<Value = Vec<u8>> {
 }
 
 fn policy() -> impl Strategy<Value = Policy> {
-    (prop_oneof![Just(None), Just(Some(1u8))], prop_oneof![Just(WritePolicy::Seed), Just(WritePolicy::Strict)])
-        .prop_map(|(unit_id, write_policy)| Policy { unit_id, write_policy })
+    (
+        prop_oneof![Just(None), Just(Some(1u8))],
+        prop_oneof![Just(WritePolicy::Seed), Just(WritePolicy::Strict)],
+        prop_oneof![3 => Just(false), 1 => Just(true)],
+    )
+        .prop_map(|(unit_id, write_policy, read_only)| Policy { unit_id, write_policy, read_only })
 }
 
 fn shared(policy: Policy) -> Shared<'static> {
@@ -121,16 +125,17 @@ fn check_reply(request: &[u8], reply: &[u8], policy: &Policy) -> Result<bool, Te
     let answer = &reply[7..];
     let known = [0x01, 0x03, 0x05, 0x06, 0x0f, 0x10].contains(&function);
     let other_unit = policy.unit_id.is_some_and(|id| ![id, 0, 0xff].contains(&request[6]));
+    let refused_write = policy.read_only && [0x05, 0x06, 0x0f, 0x10].contains(&function);
     if answer[0] == function | 0x80 && answer.len() == 2 {
-        let allowed: &[u8] = match (other_unit, known) {
-            (true, _) => &[0x0b],
-            (false, false) => &[0x01],
-            (false, true) => &[0x02, 0x03],
+        let allowed: &[u8] = match (other_unit, known, refused_write) {
+            (true, _, _) => &[0x0b],
+            (false, false, _) | (false, true, true) => &[0x01],
+            (false, true, false) => &[0x02, 0x03],
         };
         prop_assert!(allowed.contains(&answer[1]), "exception {:#04x} to {:02x?}", answer[1], pdu);
         return Ok(false);
     }
-    prop_assert!(known && !other_unit, "a normal reply to {:02x?}", pdu);
+    prop_assert!(known && !other_unit && !refused_write, "a normal reply to {:02x?}", pdu);
     prop_assert_eq!(answer[0], function);
     let quantity = usize::from(u16::from_be_bytes([pdu[3], pdu[4]]));
     match function {

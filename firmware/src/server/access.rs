@@ -1,0 +1,170 @@
+//! Access control: which clients may connect, and which may write.
+//!
+//! Modbus has no authentication; an I/O adapter's answer is an allow-list
+//! of client networks. A client outside the `connect` list is refused at
+//! once (the connection is reset); a client outside the `write` list may
+//! read, and its write functions (05, 06, 0F, 10) get exception 01. `None`
+//! means everyone, which is the default (the map's source table lets any
+//! master connect and write).
+
+use core::fmt;
+
+/// Most networks in one allow-list.
+pub const MAX_ALLOWED_NETWORKS: usize = 8;
+
+/// An IPv4 network: an address and a prefix length (0..=32).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Network {
+    address: [u8; 4],
+    prefix_len: u8,
+}
+
+impl Network {
+    /// The network `address/prefix_len`; `None` for a prefix over 32.
+    pub const fn new(address: [u8; 4], prefix_len: u8) -> Option<Self> {
+        if prefix_len > 32 { None } else { Some(Self { address, prefix_len }) }
+    }
+
+    /// Whether `address` lies in this network.
+    pub const fn contains(&self, address: [u8; 4]) -> bool {
+        let mask = match self.prefix_len {
+            0 => 0,
+            n => u32::MAX << (32 - n as u32),
+        };
+        u32::from_be_bytes(self.address) & mask == u32::from_be_bytes(address) & mask
+    }
+}
+
+impl fmt::Display for Network {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let [a, b, c, d] = self.address;
+        write!(f, "{a}.{b}.{c}.{d}/{}", self.prefix_len)
+    }
+}
+
+/// Up to [`MAX_ALLOWED_NETWORKS`] networks. Built in `const` context, so a
+/// board's build-time settings can hold one.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct AllowList {
+    networks: [Network; MAX_ALLOWED_NETWORKS],
+    len: usize,
+}
+
+impl AllowList {
+    /// A list that allows no one.
+    pub const EMPTY: Self =
+        Self { networks: [Network { address: [0; 4], prefix_len: 32 }; MAX_ALLOWED_NETWORKS], len: 0 };
+
+    /// The list with `network` added; `None` when it is full.
+    #[must_use]
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "len < MAX_ALLOWED_NETWORKS is checked first; const fn cannot use get_mut"
+    )]
+    pub const fn with(mut self, network: Network) -> Option<Self> {
+        if self.len >= MAX_ALLOWED_NETWORKS {
+            return None;
+        }
+        self.networks[self.len] = network;
+        self.len += 1;
+        Some(self)
+    }
+
+    /// The networks in the list.
+    pub fn networks(&self) -> &[Network] {
+        self.networks.get(..self.len).unwrap_or(&[])
+    }
+
+    /// Whether `address` lies in one of the networks.
+    pub fn allows(&self, address: [u8; 4]) -> bool {
+        self.networks().iter().any(|network| network.contains(address))
+    }
+}
+
+impl fmt::Display for AllowList {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for (i, network) in self.networks().iter().enumerate() {
+            if i > 0 {
+                f.write_str(",")?;
+            }
+            write!(f, "{network}")?;
+        }
+        Ok(())
+    }
+}
+
+/// Who may connect and who may write. `None`: everyone.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Access {
+    /// Clients that may connect; others are refused at once.
+    pub connect: Option<AllowList>,
+    /// Clients that may write; others get exception 01 on write functions.
+    pub write: Option<AllowList>,
+}
+
+impl Access {
+    /// Everyone may connect and write.
+    pub const OPEN: Self = Self { connect: None, write: None };
+
+    /// Whether a client at `address` may connect.
+    pub fn may_connect(&self, address: [u8; 4]) -> bool {
+        self.connect.is_none_or(|list| list.allows(address))
+    }
+
+    /// Whether a client at `address` may write.
+    pub fn may_write(&self, address: [u8; 4]) -> bool {
+        self.write.is_none_or(|list| list.allows(address))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn net(a: [u8; 4], p: u8) -> Network {
+        Network::new(a, p).unwrap()
+    }
+
+    #[test]
+    fn networks_contain_their_addresses() {
+        let lan = net([192, 168, 1, 0], 24);
+        assert!(lan.contains([192, 168, 1, 0]) && lan.contains([192, 168, 1, 255]));
+        assert!(!lan.contains([192, 168, 2, 1]) && !lan.contains([10, 0, 0, 1]));
+        let host = net([10, 0, 0, 5], 32);
+        assert!(host.contains([10, 0, 0, 5]) && !host.contains([10, 0, 0, 4]));
+        let all = net([1, 2, 3, 4], 0);
+        assert!(all.contains([0, 0, 0, 0]) && all.contains([255, 255, 255, 255]));
+        assert!(net([198, 18, 0, 0], 15).contains([198, 19, 255, 1]));
+        assert!(!net([198, 18, 0, 0], 15).contains([198, 20, 0, 1]));
+        assert_eq!(Network::new([0; 4], 33), None);
+        assert_eq!(lan.to_string(), "192.168.1.0/24");
+    }
+
+    #[test]
+    fn allow_lists() {
+        let mut list = AllowList::EMPTY;
+        assert!(!list.allows([10, 0, 0, 1]), "an empty list allows no one");
+        for i in 0..MAX_ALLOWED_NETWORKS as u8 {
+            list = list.with(net([10, i, 0, 0], 16)).unwrap();
+        }
+        assert_eq!(list.with(net([11, 0, 0, 0], 8)), None, "full");
+        assert!(list.allows([10, 7, 1, 1]) && !list.allows([10, 8, 1, 1]));
+        assert_eq!(list.networks().len(), MAX_ALLOWED_NETWORKS);
+        let two = AllowList::EMPTY.with(net([10, 0, 0, 0], 8)).unwrap().with(net([192, 168, 0, 0], 16)).unwrap();
+        assert_eq!(two.to_string(), "10.0.0.0/8,192.168.0.0/16");
+    }
+
+    #[test]
+    fn access_defaults_to_open() {
+        assert!(Access::OPEN.may_connect([1, 2, 3, 4]) && Access::OPEN.may_write([1, 2, 3, 4]));
+        let readers = AllowList::EMPTY.with(net([198, 18, 0, 0], 24)).unwrap();
+        let writer = AllowList::EMPTY.with(net([198, 18, 0, 9], 32)).unwrap();
+        let access = Access { connect: Some(readers), write: Some(writer) };
+        assert!(access.may_connect([198, 18, 0, 1]) && !access.may_write([198, 18, 0, 1]));
+        assert!(access.may_connect([198, 18, 0, 9]) && access.may_write([198, 18, 0, 9]));
+        assert!(!access.may_connect([198, 18, 1, 1]));
+    }
+}

@@ -1,0 +1,126 @@
+//! Diagnostics counters (as an I/O adapter's web page or WAGO's diagnostics
+//! show them): what the server has seen since start-up.
+//!
+//! Counted with relaxed atomics, so any task may count without a lock and a
+//! reader gets each counter exact (the set is not one atomic snapshot).
+
+use core::fmt;
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use crate::modbus::Exception;
+
+macro_rules! counters {
+    ($( $(#[$doc:meta])* $name:ident ),* $(,)?) => {
+        /// The live counters, shared by all tasks.
+        #[derive(Debug, Default)]
+        pub struct Stats {
+            $( $(#[$doc])* pub $name: AtomicU32, )*
+        }
+
+        /// A copy of the counters at one moment.
+        #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+        #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+        pub struct Counters {
+            $( $(#[$doc])* pub $name: u32, )*
+        }
+
+        impl Stats {
+            /// All counters at 0.
+            pub const fn new() -> Self {
+                Self { $( $name: AtomicU32::new(0), )* }
+            }
+
+            /// Reads every counter.
+            pub fn snapshot(&self) -> Counters {
+                Counters { $( $name: self.$name.load(Ordering::Relaxed), )* }
+            }
+        }
+
+        impl fmt::Display for Counters {
+            /// `name=value` pairs separated by spaces, in a fixed order.
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                let mut sep = "";
+                $(
+                    write!(f, "{sep}{}={}", stringify!($name), self.$name)?;
+                    sep = " ";
+                )*
+                let _ = sep;
+                Ok(())
+            }
+        }
+    };
+}
+
+counters! {
+    /// Modbus frames received (protocol id 0), answered or not.
+    requests,
+    /// Frames with a protocol id other than 0, skipped.
+    bad_protocol,
+    /// Length fields outside 2..=254: the connection was closed.
+    bad_length,
+    /// Exception 01 for an unknown function code.
+    bad_function,
+    /// Exception 02.
+    bad_address,
+    /// Exception 03.
+    bad_value,
+    /// Exception 01 for a write from a client outside the write allow-list.
+    refused_writes,
+    /// Exception 0B: a unit id this server does not answer.
+    other_unit,
+    /// Sessions closed to make room for a new client.
+    evictions,
+    /// Sessions closed by the idle or the frame timeout.
+    timeouts,
+    /// Connections refused by the connect allow-list.
+    refused_connections,
+    /// Times the communication watchdog put the outputs in their safe state.
+    watchdog_trips,
+}
+
+impl Stats {
+    /// Adds one to `counter`.
+    pub fn count(counter: &AtomicU32) {
+        counter.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Counts an exception reply to `function` under its counter.
+    pub(crate) fn count_exception(&self, exception: Exception, refused_write: bool) {
+        let counter = match exception {
+            Exception::IllegalFunction if refused_write => &self.refused_writes,
+            Exception::IllegalFunction => &self.bad_function,
+            Exception::IllegalDataAddress => &self.bad_address,
+            Exception::IllegalDataValue => &self.bad_value,
+            Exception::GatewayTargetDeviceFailedToRespond => &self.other_unit,
+            Exception::ServerDeviceFailure => return,
+        };
+        Self::count(counter);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn counts_and_reports() {
+        let stats = Stats::new();
+        Stats::count(&stats.requests);
+        Stats::count(&stats.requests);
+        stats.count_exception(Exception::IllegalFunction, false);
+        stats.count_exception(Exception::IllegalFunction, true);
+        stats.count_exception(Exception::IllegalDataAddress, false);
+        stats.count_exception(Exception::IllegalDataValue, false);
+        stats.count_exception(Exception::GatewayTargetDeviceFailedToRespond, false);
+        let c = stats.snapshot();
+        assert_eq!(
+            (c.requests, c.bad_function, c.refused_writes, c.bad_address, c.bad_value, c.other_unit),
+            (2, 1, 1, 1, 1, 1)
+        );
+        assert_eq!(
+            c.to_string(),
+            "requests=2 bad_protocol=0 bad_length=0 bad_function=1 bad_address=1 bad_value=1 refused_writes=1 \
+             other_unit=1 evictions=0 timeouts=0 refused_connections=0 watchdog_trips=0"
+        );
+    }
+}
