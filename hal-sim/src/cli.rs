@@ -7,13 +7,17 @@ use std::path::PathBuf;
 
 use embassy_time::Duration;
 use firmware::map::WritePolicy;
-use firmware::server::{self, Config, Policy};
+use firmware::server::access::MAX_ALLOWED_NETWORKS;
+use firmware::server::{self, Access, AllowList, Config, Network, Policy, SafeState, Watchdog};
 use firmware::sim_robot::Mode;
 
 pub const USAGE: &str = "\
 usage: hal-sim --tap NAME [--ip CIDR] [--gateway IP] [--port 502] [--max-connections 8]
                [--idle-timeout SECS] [--unit-id N] [--write-policy seed|strict]
                [--control PATH] [--robot demo|idle]
+               [--watchdog SECS] [--safe-do MASK] [--safe-tool-do MASK]
+               [--safe-ao1 VALUE] [--safe-ao2 VALUE]
+               [--allow CIDR,...] [--allow-write CIDR,...]
 
   --tap NAME            the TAP interface to run on (made beforehand with
                         `ip tuntap add dev NAME mode tap user $USER`, or by hal-sim as root)
@@ -29,6 +33,19 @@ usage: hal-sim --tap NAME [--ip CIDR] [--gateway IP] [--port 502] [--max-connect
                         overwritten by their source; strict: they get exception 02
   --control PATH        a Unix socket for simulated inputs, outputs and robot events
   --robot MODE          demo (default): a robot running a looping program; idle: STANDBY, still
+  --watchdog SECS       communication watchdog: with no valid request for SECS seconds (decimals
+                        allowed, e.g. 0.5), the outputs go to their safe state until written
+                        again; 0: off (default)
+  --safe-do MASK        digital outputs in the safe state, bit n = output n+1 (default 0: all off;
+                        decimal or 0x-hex)
+  --safe-tool-do MASK   tool digital outputs in the safe state (default 0)
+  --safe-ao1 VALUE      analog output 1 in the safe state, in the unit of its type (default 0)
+  --safe-ao2 VALUE      analog output 2 in the safe state (default 0)
+  --allow CIDR,...      only clients in these networks may connect (up to 8; default: everyone);
+                        others are refused at once
+  --allow-write CIDR,...
+                        only clients in these networks may write (up to 8; default: everyone);
+                        others get exception 01 on write functions
   -h, --help            this text
   -V, --version         hal-sim's version and the firmware version it reports";
 
@@ -87,6 +104,13 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
     let mut write_policy = None;
     let mut control = None;
     let mut robot = None;
+    let mut watchdog = None;
+    let mut safe_do = None;
+    let mut safe_tool_do = None;
+    let mut safe_ao1 = None;
+    let mut safe_ao2 = None;
+    let mut allow = None;
+    let mut allow_write = None;
 
     let mut args = args.into_iter();
     while let Some(arg) = args.next() {
@@ -110,6 +134,13 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
             "--write-policy" => &mut write_policy,
             "--control" => &mut control,
             "--robot" => &mut robot,
+            "--watchdog" => &mut watchdog,
+            "--safe-do" => &mut safe_do,
+            "--safe-tool-do" => &mut safe_tool_do,
+            "--safe-ao1" => &mut safe_ao1,
+            "--safe-ao2" => &mut safe_ao2,
+            "--allow" => &mut allow,
+            "--allow-write" => &mut allow_write,
             _ if flag.starts_with('-') => return error(format!("unknown option `{flag}`")),
             _ => return error(format!("unexpected argument `{arg}` (options start with --)")),
         };
@@ -161,8 +192,28 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
         Some("idle") => Mode::Idle,
         Some(other) => return error(format!("`--robot` must be demo or idle, not `{other}`")),
     };
-    let config =
-        Config { port, max_connections, policy: Policy { unit_id, write_policy }, idle_timeout, ..Config::DEFAULT };
+    let timeout = watchdog.map(|text| parse_seconds("--watchdog", &text)).transpose()?.flatten();
+    let safe_state = SafeState {
+        digital: safe_do.map(|text| mask("--safe-do", &text, u16::MAX)).transpose()?.unwrap_or(0),
+        tool: safe_tool_do.map(|text| mask("--safe-tool-do", &text, 0b11_1111)).transpose()?.unwrap_or(0) as u8,
+        analog: [
+            safe_ao1.map(|text| number::<u16>("--safe-ao1", &text, 0, ANALOG_MAX)).transpose()?.unwrap_or(0),
+            safe_ao2.map(|text| number::<u16>("--safe-ao2", &text, 0, ANALOG_MAX)).transpose()?.unwrap_or(0),
+        ],
+    };
+    let access = Access {
+        connect: allow.map(|text| allow_list("--allow", &text)).transpose()?,
+        write: allow_write.map(|text| allow_list("--allow-write", &text)).transpose()?,
+    };
+    let config = Config {
+        port,
+        max_connections,
+        policy: Policy { unit_id, write_policy, read_only: false },
+        idle_timeout,
+        access,
+        watchdog: Watchdog { timeout, safe_state },
+        ..Config::DEFAULT
+    };
     Ok(Action::Run(Options { tap, address, prefix_len, gateway, config, control: control.map(PathBuf::from), robot }))
 }
 
@@ -188,6 +239,58 @@ fn parse_cidr(text: &str) -> Result<(Ipv4Addr, u8), UsageError> {
         return error(format!("`--ip {text}`: the device needs a unicast address"));
     }
     Ok((address, prefix))
+}
+
+/// The largest analog value of either type (20 000 µA; a voltage output is
+/// clamped to 10 000 mV when the safe state applies).
+const ANALOG_MAX: u16 = firmware::map::table::ANALOG_MAX_MICROAMPS;
+/// The longest `--watchdog`, in seconds (a day).
+pub const MAX_WATCHDOG_SECS: u64 = 24 * 3600;
+
+/// Seconds with up to 3 decimals; 0 is `None` (off).
+fn parse_seconds(flag: &str, text: &str) -> Result<Option<Duration>, UsageError> {
+    let bad =
+        || UsageError(format!("`{flag}` must be seconds from 0 to {MAX_WATCHDOG_SECS} (like 2 or 0.5), not `{text}`"));
+    let (whole, fraction) = text.split_once('.').unwrap_or((text, ""));
+    if whole.is_empty() || fraction.len() > 3 || !fraction.bytes().all(|b| b.is_ascii_digit()) {
+        return Err(bad());
+    }
+    let secs: u64 = whole.parse().map_err(|_| bad())?;
+    let millis: u64 = if fraction.is_empty() { 0 } else { format!("{fraction:0<3}").parse().map_err(|_| bad())? };
+    if secs > MAX_WATCHDOG_SECS || (secs == MAX_WATCHDOG_SECS && millis > 0) {
+        return Err(bad());
+    }
+    Ok(Some(Duration::from_millis(secs * 1000 + millis)).filter(|d| d.as_millis() > 0))
+}
+
+/// A bit mask, decimal or `0x` hexadecimal, at most `max`.
+fn mask(flag: &str, text: &str, max: u16) -> Result<u16, UsageError> {
+    let value = match text.strip_prefix("0x").or_else(|| text.strip_prefix("0X")) {
+        Some(hex) => u16::from_str_radix(hex, 16).ok(),
+        None => text.parse().ok(),
+    };
+    match value {
+        Some(value) if value <= max => Ok(value),
+        _ => error(format!("`{flag}` must be a bit mask from 0 to {max} (or 0x{max:x}), not `{text}`")),
+    }
+}
+
+/// A comma-separated list of networks, such as `198.18.0.0/24,10.1.2.3/32`.
+fn allow_list(flag: &str, text: &str) -> Result<AllowList, UsageError> {
+    let mut list = AllowList::EMPTY;
+    for item in text.split(',').map(str::trim) {
+        let (address, prefix) = match item.split_once('/') {
+            Some((address, prefix)) => (address, number::<u8>(&format!("{flag} prefix length"), prefix, 0, 32)?),
+            None => (item, 32),
+        };
+        let address = parse_ipv4(flag, address)?;
+        let network = Network::new(address.octets(), prefix)
+            .ok_or_else(|| UsageError(format!("`{flag}`: bad network `{item}`")))?;
+        list = list
+            .with(network)
+            .ok_or_else(|| UsageError(format!("`{flag}` takes at most {MAX_ALLOWED_NETWORKS} networks")))?;
+    }
+    Ok(list)
 }
 
 fn parse_ipv4(flag: &str, text: &str) -> Result<Ipv4Addr, UsageError> {
@@ -261,7 +364,7 @@ mod tests {
         assert_eq!(o.config.port, 1502);
         assert_eq!(o.config.max_connections, 3);
         assert_eq!(o.config.idle_timeout, None);
-        assert_eq!(o.config.policy, Policy { unit_id: Some(17), write_policy: WritePolicy::Strict });
+        assert_eq!(o.config.policy, Policy { unit_id: Some(17), write_policy: WritePolicy::Strict, read_only: false });
         assert_eq!(o.control, Some(PathBuf::from("/tmp/c.sock")));
         assert_eq!(o.robot, Mode::Idle);
         assert_eq!(
@@ -298,6 +401,50 @@ mod tests {
         fails(&["--tap", "t", "extra"], "unexpected argument");
         fails(&["--tap", "t", "--gateway", "x"], "not an IPv4 address");
         fails(&["--tap", "t", "--control="], "needs a value");
+        fails(&["--tap", "t", "--watchdog", "1.2345"], "like 2 or 0.5");
+        fails(&["--tap", "t", "--watchdog", "-1"], "like 2 or 0.5");
+        fails(&["--tap", "t", "--watchdog", "86401"], "like 2 or 0.5");
+        fails(&["--tap", "t", "--safe-do", "65536"], "bit mask");
+        fails(&["--tap", "t", "--safe-tool-do", "0x40"], "from 0 to 63");
+        fails(&["--tap", "t", "--safe-ao1", "20001"], "from 0 to 20000");
+        fails(&["--tap", "t", "--allow", "198.18.0.0/33"], "prefix length");
+        fails(&["--tap", "t", "--allow-write", "198.18.0"], "not an IPv4 address");
+        let nine = (1..=9).map(|i| format!("10.0.0.{i}")).collect::<Vec<_>>().join(",");
+        fails(&["--tap", "t", "--allow", &nine], "at most 8 networks");
+    }
+
+    #[test]
+    fn watchdog_safe_state_and_access() {
+        let o = run(&[
+            "--tap",
+            "t",
+            "--watchdog",
+            "0.5",
+            "--safe-do",
+            "0x8001",
+            "--safe-tool-do",
+            "3",
+            "--safe-ao1",
+            "4000",
+            "--allow",
+            "198.18.0.0/24, 10.0.0.7",
+            "--allow-write",
+            "198.18.0.9/32",
+        ])
+        .unwrap();
+        let watchdog = o.config.watchdog;
+        assert_eq!(watchdog.timeout, Some(Duration::from_millis(500)));
+        assert_eq!(watchdog.safe_state, SafeState { digital: 0x8001, tool: 3, analog: [4000, 0] });
+        let access = o.config.access;
+        assert!(access.may_connect([198, 18, 0, 200]) && access.may_connect([10, 0, 0, 7]));
+        assert!(!access.may_connect([10, 0, 0, 8]));
+        assert!(access.may_write([198, 18, 0, 9]) && !access.may_write([198, 18, 0, 1]));
+        assert_eq!(run(&["--tap", "t", "--watchdog", "0"]).unwrap().config.watchdog.timeout, None);
+        assert_eq!(
+            run(&["--tap", "t", "--watchdog", "3"]).unwrap().config.watchdog.timeout,
+            Some(Duration::from_secs(3))
+        );
+        assert_eq!(run(&["--tap", "t"]).unwrap().config.access, Access::OPEN);
     }
 
     #[test]

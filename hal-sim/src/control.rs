@@ -57,6 +57,8 @@ pub enum Command {
     },
     /// `get robot`: registers 259-264.
     GetRobot,
+    /// `get stats`: the diagnostics counters, `ok name=value ...`.
+    GetStats,
     /// `robot ...`: an event of the simulated robot.
     Robot(Event),
     /// `help`.
@@ -64,7 +66,7 @@ pub enum Command {
 }
 
 const HELP: &str = "ok commands: set di N 0|1; set tool-di N 0|1; set ai N VALUE; \
-get di|tool-di|do|tool-do; get ai N; get ao N; get robot; \
+get di|tool-di|do|tool-do; get ai N; get ao N; get robot; get stats; \
 robot estop press|release; robot safety-stop [recovery]; robot reset; robot recover; \
 robot teach press|release; robot power press|release; robot state N|NAME; help";
 
@@ -103,8 +105,12 @@ pub fn parse(line: &str) -> Result<Command, String> {
         ["get", "tool-do"] => Command::GetToolOutputs,
         ["get", "ao", n] => Command::GetAnalogOutput { channel: channel(n)? },
         ["get", "robot"] => Command::GetRobot,
+        ["get", "stats"] => Command::GetStats,
         ["get", ..] => {
-            return Err("usage: get di | get tool-di | get ai N | get do | get tool-do | get ao N | get robot".into());
+            return Err(
+                "usage: get di | get tool-di | get ai N | get do | get tool-do | get ao N | get robot | get stats"
+                    .into(),
+            );
         }
         ["robot", rest @ ..] => Command::Robot(robot_event(rest)?),
         ["help"] => Command::Help,
@@ -225,6 +231,7 @@ pub fn execute(board: &Board, command: Command) -> String {
             format!("ok {} {}", output.value, output.kind.register())
         }
         Command::GetRobot => format!("ok {}", status_words(&board.robot_status())),
+        Command::GetStats => format!("ok {}", board.shared.stats().snapshot()),
         Command::Robot(event) => match board.robot_event(event) {
             Ok(status) => {
                 log::info!("control: robot {:?}: state {:?}", event, status.state);
@@ -370,6 +377,7 @@ mod tests {
         assert_eq!(parse("robot state 7"), Ok(Command::Robot(Event::SetState(RobotState::Homing))));
         assert_eq!(parse("robot state NOT-READY"), Ok(Command::Robot(Event::SetState(RobotState::NotReady))));
         assert_eq!(parse("get robot"), Ok(Command::GetRobot));
+        assert_eq!(parse("get stats"), Ok(Command::GetStats));
     }
 
     #[test]
