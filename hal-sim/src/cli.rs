@@ -71,7 +71,7 @@ pub struct Options {
 /// What to do.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Action {
-    Run(Options),
+    Run(Box<Options>),
     Help,
     Version,
 }
@@ -214,7 +214,8 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
         watchdog: Watchdog { timeout, safe_state },
         ..Config::DEFAULT
     };
-    Ok(Action::Run(Options { tap, address, prefix_len, gateway, config, control: control.map(PathBuf::from), robot }))
+    let options = Options { tap, address, prefix_len, gateway, config, control: control.map(PathBuf::from), robot };
+    Ok(Action::Run(Box::new(options)))
 }
 
 /// The kernel's rules for an interface name (`dev_valid_name`).
@@ -314,7 +315,7 @@ mod tests {
 
     fn run(args: &[&str]) -> Result<Options, UsageError> {
         match parse(args.iter().map(|s| s.to_string()))? {
-            Action::Run(options) => Ok(options),
+            Action::Run(options) => Ok(*options),
             other => panic!("{other:?}"),
         }
     }

@@ -29,7 +29,7 @@ const MAC: [u8; 6] = [0x02, 0x4d, 0x42, 0x53, 0x49, 0x4d];
 fn main() -> ExitCode {
     init_logging();
     let options = match cli::parse(std::env::args().skip(1)) {
-        Ok(Action::Run(options)) => options,
+        Ok(Action::Run(options)) => *options,
         Ok(Action::Help) => {
             println!("{}", cli::USAGE);
             return ExitCode::SUCCESS;

@@ -228,6 +228,7 @@ mod tests {
     }
 
     #[test]
+    #[allow(clippy::assertions_on_constants, reason = "checks the values the build environment produced")]
     fn defaults_hold_without_environment() {
         // Whatever the build environment sets, it parsed; what it leaves unset has its default.
         assert!(STATIC_IP.1 >= 1 && STATIC_IP.1 <= 32);
