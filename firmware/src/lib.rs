@@ -11,13 +11,14 @@
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::indexing_slicing))]
 
 #[macro_use]
-mod fmt;
+pub mod fmt;
 
 pub mod board;
 pub mod io;
 pub mod map;
 pub mod modbus;
 pub mod server;
+pub mod settings;
 #[cfg(feature = "sim-robot")]
 pub mod sim_robot;
 

@@ -13,6 +13,7 @@ use embassy_net::{Config, ConfigV4, Ipv4Address, Ipv4Cidr, Runner, Stack, StackR
 use embassy_time::{Duration, with_timeout};
 use firmware::board::mps2_an386::lan9118::Lan9118;
 use firmware::board::mps2_an386::{self as board, Leds, Mmio, RamInputs};
+use firmware::fmt::Ip;
 use firmware::io::NoRobot;
 use firmware::server::{self, SOCKET_POOL, Shared};
 use static_cell::StaticCell;
@@ -46,7 +47,8 @@ fn main() -> ! {
     let (stack, runner) = embassy_net::new(ethernet, config, RESOURCES.init(StackResources::new()), seed);
 
     static SHARED: StaticCell<Shared<'static>> = StaticCell::new();
-    let shared: &'static Shared<'static> = SHARED.init(Shared::new(server::Config::DEFAULT, firmware::VERSION, &LEDS));
+    let shared: &'static Shared<'static> =
+        SHARED.init(Shared::new(firmware::settings::CONFIG, firmware::VERSION, &LEDS));
     shared.drive_outputs();
 
     board::run(|spawner| {
@@ -87,7 +89,8 @@ async fn refresh_task(shared: &'static Shared<'static>) -> ! {
 #[embassy_executor::task]
 async fn address_task(stack: Stack<'static>) {
     if with_timeout(DHCP_TIMEOUT, stack.wait_config_up()).await.is_err() {
-        defmt::info!("no DHCP answer: using {}", FALLBACK_ADDRESS);
+        let address = FALLBACK_ADDRESS.address().octets();
+        defmt::info!("no DHCP answer: using {}/{}", Ip(address), FALLBACK_ADDRESS.prefix_len());
         stack.set_config_v4(ConfigV4::Static(StaticConfigV4 {
             address: FALLBACK_ADDRESS,
             gateway: None,
@@ -96,6 +99,6 @@ async fn address_task(stack: Stack<'static>) {
     }
     stack.wait_config_up().await;
     if let Some(config) = stack.config_v4() {
-        defmt::info!("Modbus TCP server at {}:{=u16}", config.address.address(), server::MODBUS_PORT);
+        defmt::info!("Modbus TCP server at {}:{=u16}", Ip(config.address.address().octets()), server::MODBUS_PORT);
     }
 }

@@ -8,7 +8,7 @@ use defmt::unwrap;
 use defmt_rtt as _;
 use embassy_executor::Spawner;
 use firmware::board::nucleo_f429zi::{self as board, net, pins};
-use firmware::server::{self, Config, Shared};
+use firmware::server::{self, Shared};
 use panic_probe as _;
 use static_cell::StaticCell;
 
@@ -30,7 +30,7 @@ async fn main(spawner: Spawner) {
     let board = board::init();
 
     static SHARED: StaticCell<Shared<'static>> = StaticCell::new();
-    let shared = &*SHARED.init(Shared::new(Config::DEFAULT, firmware::VERSION, board.outputs));
+    let shared = &*SHARED.init(Shared::new(firmware::settings::CONFIG, firmware::VERSION, board.outputs));
     shared.drive_outputs();
 
     let (stack, runner) = embassy_net::new(board.ethernet, net::config(), net::resources(), board.seed);

@@ -114,7 +114,9 @@ pub struct RegisterRow {
     pub access: Access,
     pub update: Update,
     pub encoding: Encoding,
-    /// The point's name, as in DATA_MAP.md.
+    /// The point's name, as in DATA_MAP.md (for test messages; the table's
+    /// source text names every row for readers).
+    #[cfg(test)]
     pub name: &'static str,
 }
 
@@ -142,6 +144,8 @@ pub struct CoilRow {
     pub access: Access,
     pub update: Update,
     pub view: CoilView,
+    /// The point's name (test builds only, as for [`RegisterRow`]).
+    #[cfg(test)]
     pub name: &'static str,
 }
 
@@ -224,7 +228,16 @@ const fn r(
     encoding: Encoding,
     name: &'static str,
 ) -> RegisterRow {
-    RegisterRow { first, last, access, update, encoding, name }
+    let _ = name; // stored in test builds only: the image keeps no strings
+    RegisterRow {
+        first,
+        last,
+        access,
+        update,
+        encoding,
+        #[cfg(test)]
+        name,
+    }
 }
 
 const fn gap(first: u16, last: u16) -> RegisterRow {
@@ -282,7 +295,16 @@ pub static REGISTERS: [RegisterRow; 44] = [
 
 const fn c(first: u16, last: u16, access: Access, view: CoilView, name: &'static str) -> CoilRow {
     let update = if matches!(view, CoilView::Reserved) { Never } else { Event };
-    CoilRow { first, last, access, update, view, name }
+    let _ = name; // stored in test builds only
+    CoilRow {
+        first,
+        last,
+        access,
+        update,
+        view,
+        #[cfg(test)]
+        name,
+    }
 }
 
 /// The coils (DATA_MAP.md, *Coils*), in address order.

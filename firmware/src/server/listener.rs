@@ -9,6 +9,7 @@ use embassy_net::{IpAddress, IpEndpoint, Stack};
 use embassy_time::{Duration, Instant, with_timeout};
 
 use super::{SOCKET_POOL, Shared, SlotId, Stats, serve};
+use crate::fmt::Ip;
 
 /// Receive buffer of each TCP socket: room for several pipelined requests.
 pub const SOCKET_RX_LEN: usize = 1024;
@@ -65,8 +66,7 @@ pub async fn listen(stack: Stack<'_>, shared: &Shared<'_>, slot: SlotId) -> ! {
 }
 
 /// A client's IPv4 address (`None`: not IPv4, never allowed) and port, as
-/// logs show it. Formatted octet by octet so the boards' defmt logs do not
-/// pull in `core::fmt`'s IP printing.
+/// logs show it (through [`Ip`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct Peer {
     address: Option<[u8; 4]>,
@@ -87,7 +87,7 @@ impl Peer {
 impl fmt::Display for Peer {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self.address {
-            Some([a, b, c, d]) => write!(f, "{a}.{b}.{c}.{d}:{}", self.port),
+            Some(address) => write!(f, "{}:{}", Ip(address), self.port),
             None => write!(f, "a non-IPv4 client"),
         }
     }
@@ -97,7 +97,7 @@ impl fmt::Display for Peer {
 impl defmt::Format for Peer {
     fn format(&self, f: defmt::Formatter<'_>) {
         match self.address {
-            Some([a, b, c, d]) => defmt::write!(f, "{}.{}.{}.{}:{}", a, b, c, d, self.port),
+            Some(address) => defmt::write!(f, "{}:{}", Ip(address), self.port),
             None => defmt::write!(f, "a non-IPv4 client"),
         }
     }

@@ -8,6 +8,7 @@
 //! - Link loss closes every Modbus session at once: its peer may be gone, and
 //!   after a renewal the address may have changed.
 
+use crate::fmt::Ip;
 use embassy_futures::select::select;
 use embassy_net::{ConfigV4, DhcpConfig, Ipv4Address, Ipv4Cidr, Stack, StackResources, StaticConfigV4};
 use embassy_stm32::eth::{Ethernet, GenericPhy, PacketQueue, Sma};
@@ -93,7 +94,13 @@ async fn configure(stack: Stack<'static>) -> ! {
     loop {
         stack.wait_config_up().await;
         if let Some(config) = stack.config_v4() {
-            info!("address {}, gateway {}", config.address, config.gateway);
+            let gateway = config.gateway.map(|gateway| Ip(gateway.octets()));
+            info!(
+                "address {}/{}, gateway {}",
+                Ip(config.address.address().octets()),
+                config.address.prefix_len(),
+                gateway
+            );
         }
         stack.wait_config_down().await;
         warn!("address lost; waiting for DHCP");

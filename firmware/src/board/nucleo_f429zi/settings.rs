@@ -15,6 +15,7 @@
 //! A malformed value stops the build with a message naming the variable.
 
 use crate::io::AnalogType;
+use crate::settings::{invalid, parse_cidr, parse_decimal, parse_ipv4, parse_switch};
 
 /// Whether the board asks DHCP for its address (`NUCLEO_DHCP`).
 pub const DHCP: bool = match option_env!("NUCLEO_DHCP") {
@@ -52,103 +53,6 @@ pub const DHCP_TIMEOUT_S: u64 = match option_env!("NUCLEO_DHCP_TIMEOUT_S") {
         _ => invalid("NUCLEO_DHCP_TIMEOUT_S must be 1..=3600"),
     },
 };
-
-/// Stops the build: a setting above is malformed. Only ever evaluated in a `const`.
-#[allow(clippy::panic, reason = "evaluated at compile time only: a bad setting is a build error")]
-const fn invalid<T>(message: &str) -> T {
-    panic!("{}", message)
-}
-
-/// `on`/`off` (also `1`/`0`, `true`/`false`, `yes`/`no`).
-pub const fn parse_switch(text: &str) -> Option<bool> {
-    match text.as_bytes() {
-        b"on" | b"1" | b"true" | b"yes" => Some(true),
-        b"off" | b"0" | b"false" | b"no" => Some(false),
-        _ => None,
-    }
-}
-
-/// A decimal number of at most 9 digits.
-pub const fn parse_decimal(text: &str) -> Option<u64> {
-    let mut rest = text.as_bytes();
-    if rest.is_empty() || rest.len() > 9 {
-        return None;
-    }
-    let mut value = 0u64;
-    while let [digit, tail @ ..] = rest {
-        if !digit.is_ascii_digit() {
-            return None;
-        }
-        value = value * 10 + (*digit - b'0') as u64;
-        rest = tail;
-    }
-    Some(value)
-}
-
-/// Dotted-quad IPv4 address, such as `192.168.1.50`.
-pub const fn parse_ipv4(text: &str) -> Option<[u8; 4]> {
-    let mut rest = text.as_bytes();
-    let mut address = 0u32;
-    let mut octets = 0;
-    loop {
-        let (octet, tail) = match split_once(rest, b'.') {
-            Some(parts) => parts,
-            None => (rest, &[] as &[u8]),
-        };
-        let value = match parse_decimal_bytes(octet) {
-            Some(value) if value <= 255 && octet.len() <= 3 => value,
-            _ => return None,
-        };
-        address = (address << 8) | value as u32;
-        octets += 1;
-        if tail.is_empty() {
-            // "1.2.3." leaves an empty tail after a separator: caught by the length check below.
-            let ends_with_dot = matches!(rest, [.., b'.']);
-            return if octets == 4 && !ends_with_dot { Some(address.to_be_bytes()) } else { None };
-        }
-        if octets == 4 {
-            return None;
-        }
-        rest = tail;
-    }
-}
-
-/// [`parse_decimal`] over bytes.
-const fn parse_decimal_bytes(bytes: &[u8]) -> Option<u64> {
-    match core::str::from_utf8(bytes) {
-        Ok(text) => parse_decimal(text),
-        Err(_) => None,
-    }
-}
-
-/// An address with its prefix length, such as `192.168.1.50/24` (prefix 1..=32).
-pub const fn parse_cidr(text: &str) -> Option<([u8; 4], u8)> {
-    let (address, prefix) = match split_once(text.as_bytes(), b'/') {
-        Some(parts) => parts,
-        None => return None,
-    };
-    let address = match core::str::from_utf8(address) {
-        Ok(text) => parse_ipv4(text),
-        Err(_) => None,
-    };
-    match (address, parse_decimal_bytes(prefix)) {
-        (Some(address), Some(prefix)) if prefix >= 1 && prefix <= 32 => Some((address, prefix as u8)),
-        _ => None,
-    }
-}
-
-/// Splits `bytes` at the first `separator`.
-const fn split_once(bytes: &[u8], separator: u8) -> Option<(&[u8], &[u8])> {
-    let mut rest = bytes;
-    while let [byte, tail @ ..] = rest {
-        if *byte == separator {
-            let (head, _) = bytes.split_at(bytes.len() - rest.len());
-            return Some((head, tail));
-        }
-        rest = tail;
-    }
-    None
-}
 
 /// A locally administered, unicast MAC address from the chip's 96-bit unique
 /// ID: `02` then 40 bits of the ID's FNV-1a hash. The same chip always gets
@@ -194,38 +98,6 @@ pub const fn value_to_dac(value: u16, kind: AnalogType) -> u16 {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn addresses_parse() {
-        assert_eq!(parse_ipv4("192.168.1.50"), Some([192, 168, 1, 50]));
-        assert_eq!(parse_ipv4("0.0.0.0"), Some([0, 0, 0, 0]));
-        assert_eq!(parse_ipv4("255.255.255.255"), Some([255; 4]));
-        for bad in
-            ["", "1.2.3", "1.2.3.4.5", "256.1.1.1", "1..2.3", "1.2.3.", ".1.2.3", "a.b.c.d", "1.2.3.4 ", "0001.2.3.4"]
-        {
-            assert_eq!(parse_ipv4(bad), None, "{bad:?}");
-        }
-    }
-
-    #[test]
-    fn prefixes_parse() {
-        assert_eq!(parse_cidr("10.0.0.7/8"), Some(([10, 0, 0, 7], 8)));
-        assert_eq!(parse_cidr("198.18.0.2/32"), Some(([198, 18, 0, 2], 32)));
-        for bad in ["10.0.0.7", "10.0.0.7/", "10.0.0.7/0", "10.0.0.7/33", "/24", "10.0.0.7/2x"] {
-            assert_eq!(parse_cidr(bad), None, "{bad:?}");
-        }
-    }
-
-    #[test]
-    fn switches_and_numbers_parse() {
-        assert_eq!(parse_switch("on"), Some(true));
-        assert_eq!(parse_switch("0"), Some(false));
-        assert_eq!(parse_switch("maybe"), None);
-        assert_eq!(parse_decimal("10"), Some(10));
-        assert_eq!(parse_decimal(""), None);
-        assert_eq!(parse_decimal("-1"), None);
-        assert_eq!(parse_decimal("1234567890"), None);
-    }
 
     #[test]
     #[allow(clippy::assertions_on_constants, reason = "checks the values the build environment produced")]
