@@ -24,8 +24,6 @@ use crate::netns::{DEVICE_IP, Namespace, TAP};
 
 /// How long hal-sim may take to print its "listening" line.
 pub const START_TIMEOUT: Duration = Duration::from_secs(10);
-/// The longest a test's client side may run.
-pub const TEST_TIMEOUT: Duration = Duration::from_secs(60);
 /// The Modbus port hal-sim listens on in the tests (each test has its own namespace).
 pub const PORT: u16 = 502;
 
@@ -151,28 +149,14 @@ impl HalSim {
 
     /// Runs `test` on a new thread inside the namespace, on a current-thread
     /// tokio runtime, and returns its result (a panic inside fails the test,
-    /// and so does running longer than [`TEST_TIMEOUT`]).
+    /// and so does running longer than [`crate::TEST_TIMEOUT`]).
     pub fn run<T, F, Fut>(&self, test: F) -> T
     where
         T: Send,
         F: FnOnce() -> Fut + Send,
         Fut: Future<Output = T>,
     {
-        std::thread::scope(|scope| {
-            let thread = scope.spawn(|| {
-                self.ns.enter().expect("the test thread enters the namespace");
-                let runtime =
-                    tokio::runtime::Builder::new_current_thread().enable_all().build().expect("a tokio runtime");
-                match runtime.block_on(async { tokio::time::timeout(TEST_TIMEOUT, test()).await }) {
-                    Ok(value) => value,
-                    Err(_) => panic!("the client side did not finish in {TEST_TIMEOUT:?} (hal-sim stuck or dead?)"),
-                }
-            });
-            match thread.join() {
-                Ok(value) => value,
-                Err(panic) => std::panic::resume_unwind(panic),
-            }
-        })
+        crate::run_client(Some(&self.ns), test)
     }
 
     /// A tokio-modbus client connected to hal-sim (unit id 0xFF). Call it

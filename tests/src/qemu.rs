@@ -336,20 +336,7 @@ impl Qemu {
         F: FnOnce() -> Fut + Send,
         Fut: Future<Output = T>,
     {
-        std::thread::scope(|scope| {
-            let thread = scope.spawn(|| {
-                if let Some(ns) = &self.ns {
-                    ns.enter().expect("the test thread enters the namespace");
-                }
-                let runtime =
-                    tokio::runtime::Builder::new_current_thread().enable_all().build().expect("a tokio runtime");
-                runtime.block_on(test())
-            });
-            match thread.join() {
-                Ok(value) => value,
-                Err(panic) => std::panic::resume_unwind(panic),
-            }
-        })
+        crate::run_client(self.ns.as_ref(), test)
     }
 
     /// A tokio-modbus client whose first request (the version registers) was
