@@ -1,0 +1,199 @@
+//! What the fuzz targets share: the layout of a fuzz input, an in-memory
+//! connection for a session, and the checks every reply must pass.
+//!
+//! Each target is a few lines around one function here ([`session`],
+//! [`handler`], [`codec`]), so the same checks also run as plain tests over
+//! the seed inputs (`cargo test` in this workspace).
+//!
+//! The checks mirror the library's session property test
+//! (`firmware/src/server/session/properties.rs`): any stream, cut into reads
+//! of any size, is framed by the MBAP length field only, every Modbus frame
+//! gets exactly one well-formed reply in order, and the map (and the pins)
+//! change only through acknowledged writes.
+
+pub mod check;
+pub mod connection;
+pub mod input;
+
+use core::cell::Cell;
+use core::pin::pin;
+use core::task::Poll;
+
+use firmware::map::Image;
+use firmware::modbus::mbap::{self, MAX_ADU_LEN};
+use firmware::modbus::{Exception, Request, Response};
+use firmware::server::{self, Config, Error, Outcome, Policy, Shared, handler};
+
+use check::{Pins, check_reply, oracle_frames, split_replies};
+use connection::{Connection, poll_once};
+pub use input::{HandlerInput, SessionInput};
+
+/// A server as the tests configure it: no idle timeout (the mock clock never
+/// moves, but a session must not depend on that), the policy under test.
+fn shared(policy: Policy, pins: &Pins) -> Shared<'_> {
+    let config = Config { policy, idle_timeout: None, ..Config::DEFAULT };
+    Shared::new(config, firmware::VERSION, pins)
+}
+
+/// Bound on polls of one session: every `Pending` must come from the
+/// connection, which stalls at most once per read or write.
+const MAX_POLLS: usize = 1 << 20;
+
+/// Drives a whole session over `data` (see [`SessionInput`]) and checks it.
+pub fn session(data: &[u8]) {
+    let input = SessionInput::parse(data);
+    let policy = input.policy();
+    let pins = Pins::default();
+    let server = shared(policy, &pins);
+    let stalls = Cell::new(0usize);
+    let mut end = Connection::new(&input, &stalls);
+    let result = {
+        let mut session = pin!(server::serve(&mut end, &server, 0));
+        let mut polls = 0;
+        loop {
+            let before = stalls.get();
+            match poll_once(session.as_mut()) {
+                Poll::Ready(result) => break result,
+                Poll::Pending => {
+                    assert!(stalls.get() > before, "the session waits with all input there and nothing stalled");
+                    polls += 1;
+                    assert!(polls < MAX_POLLS, "the session never ends");
+                }
+            }
+        }
+    };
+
+    let (requests, lost) = oracle_frames(input.stream);
+    match result {
+        Ok(()) => assert!(!lost, "the stream has a bad length field, yet the session ended cleanly"),
+        Err(Error::BadLength(len)) => assert!(lost, "BadLength({len}) on a stream the oracle frames whole"),
+        Err(other) => panic!("the session ended with {other:?}"),
+    }
+    let modbus: Vec<&[u8]> = requests.into_iter().filter(|r| r.get(2..4) == Some(&[0, 0])).collect();
+    let replies = split_replies(&end.sent);
+    assert_eq!(replies.len(), modbus.len(), "one reply per Modbus frame, none for others");
+
+    // The model: a fresh server that sees only the acknowledged writes and
+    // the reads. At each step it holds what the session's server should
+    // hold, so it must give the very same reply.
+    let model_pins = Pins::default();
+    let model = shared(policy, &model_pins);
+    let mut expected = [0u8; MAX_ADU_LEN];
+    for (request, reply) in modbus.iter().zip(&replies) {
+        let acknowledged_write = check_reply(request, reply, &policy);
+        let is_read = matches!(request.get(7), Some(0x01 | 0x03)) && !is_exception(reply);
+        if acknowledged_write || is_read {
+            let outcome = model.respond(request, &mut expected);
+            let Outcome::Reply { len, exception, .. } = outcome else { panic!("the model discarded {request:02x?}") };
+            assert_eq!(exception, None, "replaying {request:02x?} on the model fails");
+            assert_eq!(&expected[..len], *reply, "the model answers {request:02x?} otherwise");
+        } else {
+            // Refused: the same refusal from the model, and nothing changed.
+            let before = model.read(Clone::clone);
+            let mut copy = before.clone();
+            let outcome = handler::respond(request, &mut expected, &mut copy, &policy);
+            let Outcome::Reply { len, .. } = outcome else { panic!("the handler discarded {request:02x?}") };
+            assert_eq!(&expected[..len], *reply, "the model refuses {request:02x?} otherwise");
+            assert_eq!(copy, before, "a refused request {request:02x?} changed the map");
+        }
+    }
+    let image = server.read(Clone::clone);
+    assert!(image == model.read(Clone::clone), "the map holds exactly the acknowledged writes");
+    check::pins_follow_map(&pins, &image);
+}
+
+fn is_exception(reply: &[u8]) -> bool {
+    reply.get(7).is_some_and(|f| f & 0x80 != 0)
+}
+
+/// Answers each record of `data` (see [`HandlerInput`]) with the handler
+/// alone, on one image, and checks each answer.
+pub fn handler(data: &[u8]) {
+    let input = HandlerInput::parse(data);
+    let policy = input.policy();
+    let mut image = Image::new();
+    firmware::VERSION.apply(&mut image);
+    let mut reply = [0xa5u8; MAX_ADU_LEN];
+    for frame in input.frames() {
+        let before = image.clone();
+        let outcome = handler::respond(frame, &mut reply, &mut image, &policy);
+        let protocol_id = be_u16(frame, 2).unwrap_or(0);
+        let (len, exception) = match outcome {
+            Outcome::Discard { protocol_id: said } => {
+                assert_ne!(protocol_id, mbap::MODBUS_PROTOCOL_ID, "a Modbus frame discarded");
+                assert_eq!(said, protocol_id);
+                assert!(image == before, "a discarded frame changed the map");
+                continue;
+            }
+            Outcome::Reply { len, exception, .. } => (len, exception),
+        };
+        assert_eq!(protocol_id, mbap::MODBUS_PROTOCOL_ID, "a reply to protocol id {protocol_id}");
+        assert!((mbap::HEADER_LEN + 2..=MAX_ADU_LEN).contains(&len), "reply length {len}");
+        let out = &reply[..len];
+        assert_eq!(usize::from(be_u16(out, 4).unwrap_or(0)), len - 6, "the reply's length field");
+        if frame.len() >= mbap::HEADER_LEN {
+            assert_eq!(out[..2], frame[..2], "transaction id echoed");
+            assert_eq!(out[6], frame[6], "unit id echoed");
+        }
+        // The PDU as the length field delimits it (the handler trusts it).
+        let length = usize::from(be_u16(frame, 4).unwrap_or(0));
+        let function = frame.get(7..6 + length).and_then(<[u8]>::first).copied().unwrap_or(0);
+        match exception {
+            Some(e) => {
+                assert_eq!(out[7..], [(function & 0x7f) | 0x80, e.code()], "exception reply");
+                assert!(image == before, "a refused request changed the map");
+            }
+            None => {
+                if matches!(function, 0x01 | 0x03) {
+                    assert!(image == before, "a read changed the map");
+                }
+            }
+        }
+        // A frame whose length field covers exactly its bytes is a real
+        // request: its reply passes the session's checks too.
+        if mbap::next_frame_len(frame) == Ok(Some(frame.len())) {
+            check_reply(frame, out, &policy);
+        }
+    }
+}
+
+/// Parses `data` as a request PDU, a response PDU and an MBAP stream, and
+/// checks each against a few lines of the specification.
+pub fn codec(data: &[u8]) {
+    let mut buf = [0xa5u8; MAX_ADU_LEN + 8];
+    let pdu = data;
+    let known = matches!(pdu.first(), Some(0x01 | 0x03 | 0x05 | 0x06 | 0x0f | 0x10));
+    match Request::parse(pdu) {
+        Ok(request) => {
+            assert!(known);
+            assert_eq!(request.emit(&mut buf), Some(pdu.len()), "{request:?}");
+            assert_eq!(&buf[..pdu.len()], pdu, "emit(parse(x)) == x");
+            assert_eq!(request.buffer_len(), pdu.len());
+        }
+        Err(e) => {
+            let allowed = if known { Exception::IllegalDataValue } else { Exception::IllegalFunction };
+            assert_eq!(e, allowed, "parsing {pdu:02x?}");
+        }
+    }
+    if let Ok(response) = Response::parse(pdu) {
+        assert_eq!(response.emit(&mut buf), Some(pdu.len()), "{response:?}");
+        assert_eq!(&buf[..pdu.len()], pdu, "emit(parse(x)) == x");
+    }
+
+    let framed = mbap::next_frame_len(pdu);
+    let expected = match be_u16(pdu, 4) {
+        None => Ok(None),
+        Some(length) if !(2..=254).contains(&length) => Err(mbap::Error::BadLength(length)),
+        Some(length) if pdu.len() < 6 + usize::from(length) => Ok(None),
+        Some(length) => Ok(Some(6 + usize::from(length))),
+    };
+    assert_eq!(framed, expected, "framing {pdu:02x?}");
+}
+
+/// A big-endian `u16` at `offset`.
+pub(crate) fn be_u16(bytes: &[u8], offset: usize) -> Option<u16> {
+    match bytes.get(offset..offset + 2)? {
+        [hi, lo] => Some(u16::from_be_bytes([*hi, *lo])),
+        _ => None,
+    }
+}
