@@ -1,6 +1,7 @@
 //! Shared helpers of the system tests: network namespaces and the programs
 //! under test.
 
+pub mod abuse;
 pub mod hal_sim;
 pub mod netns;
 pub mod qemu;
