@@ -4,20 +4,23 @@
 
 mod cli;
 mod control;
+mod executor;
 mod sim;
+mod tap;
 
 use std::hash::{BuildHasher, Hasher, RandomState};
 use std::io::Write as _;
 use std::process::ExitCode;
 
-use embassy_executor::{Executor, Spawner};
+use embassy_executor::Spawner;
 use embassy_net::{Ipv4Cidr, Runner, Stack, StackResources, StaticConfigV4};
-use embassy_net_tuntap::TunTapDevice;
 use firmware::server::{self, SOCKET_POOL, Shared};
 use firmware::sim_robot::SimRobot;
 
 use crate::cli::{Action, Options};
+use crate::executor::Executor;
 use crate::sim::{Board, OutputLatch};
+use crate::tap::TunTapDevice;
 
 /// Exit status for a command line hal-sim cannot run with.
 const EXIT_USAGE: u8 = 2;
@@ -86,7 +89,13 @@ fn run(
     let board: &'static Board = Box::leak(Box::new(Board::new(shared, outputs, SimRobot::new(options.robot))));
     let options: &'static Options = Box::leak(Box::new(options));
 
-    let executor: &'static mut Executor = Box::leak(Box::new(Executor::new()));
+    let executor: &'static mut Executor = match Executor::new() {
+        Ok(executor) => Box::leak(Box::new(executor)),
+        Err(e) => {
+            eprintln!("hal-sim: cannot make its executor: {e}");
+            std::process::exit(i32::from(EXIT_UNAVAILABLE));
+        }
+    };
     executor.run(|spawner| {
         if let Err(e) = start(spawner, stack, runner, board, options, control) {
             eprintln!("hal-sim: cannot start its tasks: {e:?}");
