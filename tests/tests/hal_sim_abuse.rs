@@ -58,7 +58,8 @@ fn finish(sim: &mut HalSim, ledger: &Ledger) {
         tokio::time::sleep(AFTER_REFRESH).await;
         assert_eq!(fresh.read_holding_registers(256, 3).await.unwrap().unwrap(), firmware_version());
         drop(fresh);
-        tokio::time::sleep(Duration::from_millis(50)).await;
+        // hal-sim closes the fresh client's session before the nine come.
+        tokio::time::sleep(Duration::from_millis(200)).await;
 
         let mut clients = Vec::new();
         for i in 0..8u16 {
@@ -323,7 +324,7 @@ fn clients_that_reset_mid_request_change_nothing_unacknowledged() {
             raw.set_zero_linger().unwrap();
             drop(raw);
             // Let hal-sim take in (or drop) what came before the reset.
-            tokio::time::sleep(Duration::from_millis(30)).await;
+            tokio::time::sleep(Duration::from_millis(100)).await;
             ledger.settle(&mut bystander, &first).await;
             ledger.verify(&mut bystander).await;
         }
