@@ -452,3 +452,87 @@ fn main() -> ExitCode {
     let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("a tokio runtime");
     runtime.block_on(run(options))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn emit(request: Request, transaction: u16, seq: u16) -> Vec<u8> {
+        let mut buf = [0xa5; MAX_ADU_LEN];
+        let len = request.emit(&mut buf, transaction, 1, seq);
+        buf[..len].to_vec()
+    }
+
+    #[test]
+    fn read_holding_registers_request_is_the_spec_bytes() {
+        let request = Request::new(3, None, None).unwrap();
+        assert_eq!(
+            emit(request, 0x0102, 0),
+            [
+                0x01, 0x02, // transaction id
+                0x00, 0x00, // protocol id
+                0x00, 0x06, // length: unit + 5 PDU bytes
+                0x01, // unit id
+                0x03, 0x00, 0x00, 0x00, 0x0a, // fc 03, address 0, quantity 10
+            ]
+        );
+    }
+
+    #[test]
+    fn write_requests_carry_their_byte_counts_and_values() {
+        let fc16 = emit(Request::new(16, None, Some(3)).unwrap(), 1, 7);
+        assert_eq!(&fc16[4..], [0x00, 0x0d, 0x01, 0x10, 0x00, 0x80, 0x00, 0x03, 0x06, 0, 7, 0, 8, 0, 9]);
+        let fc15 = emit(Request::new(15, None, Some(10)).unwrap(), 1, 0);
+        // Coils 16..=25, every third one on starting with the first: bits 0, 3, 6, 9.
+        assert_eq!(&fc15[4..], [0x00, 0x09, 0x01, 0x0f, 0x00, 0x10, 0x00, 0x0a, 0x02, 0b0100_1001, 0b0000_0010]);
+        let fc05 = emit(Request::new(5, None, None).unwrap(), 1, 2);
+        assert_eq!(&fc05[7..], [0x05, 0x00, 0x10, 0xff, 0x00]);
+    }
+
+    #[test]
+    fn replies_are_checked_against_their_request() {
+        let read = Request::new(3, None, Some(2)).unwrap();
+        let request = emit(read, 1, 0);
+        let good = [0, 1, 0, 0, 0, 7, 1, 0x03, 0x04, 0, 1, 0, 2];
+        assert_eq!(read.check(&request, &good), Ok(()));
+        let exception = [0, 1, 0, 0, 0, 3, 1, 0x83, 0x02];
+        assert!(read.check(&request, &exception).unwrap_err().contains("exception 02"));
+        let short = [0, 1, 0, 0, 0, 5, 1, 0x03, 0x02, 0, 1];
+        assert!(read.check(&request, &short).is_err());
+
+        let write = Request::new(16, None, Some(2)).unwrap();
+        let request = emit(write, 1, 0);
+        let echo = [0, 1, 0, 0, 0, 6, 1, 0x10, 0x00, 0x80, 0x00, 0x02];
+        assert_eq!(write.check(&request, &echo), Ok(()));
+        let wrong_quantity = [0, 1, 0, 0, 0, 6, 1, 0x10, 0x00, 0x80, 0x00, 0x03];
+        assert!(write.check(&request, &wrong_quantity).is_err());
+    }
+
+    #[test]
+    fn the_mix_fits_the_map_and_the_limits() {
+        for request in Request::mix() {
+            let limit = if matches!(request.fc, 1 | 5 | 15) { 266 } else { 436 };
+            assert!(u32::from(request.address) + u32::from(request.count) <= limit, "{request:?}");
+            assert!(Request::new(request.fc, Some(request.address), Some(request.count)).is_ok(), "{request:?}");
+        }
+    }
+
+    #[test]
+    fn counts_outside_the_function_limits_are_refused() {
+        assert!(Request::new(3, None, Some(0)).is_err());
+        assert!(Request::new(3, None, Some(126)).is_err());
+        assert!(Request::new(16, None, Some(124)).is_err());
+        assert!(Request::new(7, None, None).is_err());
+        assert!(Request::new(3, None, Some(125)).is_ok());
+    }
+
+    #[test]
+    fn percentiles_take_the_nearest_rank() {
+        let samples: Vec<Sample> = (1..=1000).map(|i| i * 1000).collect();
+        assert_eq!(percentile(&samples, 0.5), 500.0);
+        assert_eq!(percentile(&samples, 0.99), 990.0);
+        assert_eq!(percentile(&samples, 0.999), 999.0);
+        assert_eq!(percentile(&samples, 1.0), 1000.0);
+        assert_eq!(percentile(&[], 0.5), 0.0);
+    }
+}
