@@ -1,21 +1,24 @@
 //! The executor hal-sim runs on: embassy's raw executor, on one thread that
-//! sleeps in `poll(2)` on the TAP and on an eventfd.
+//! sleeps in `poll(2)` on the TAP and on an eventfd, until the next timer.
 //!
 //! embassy's std executor sleeps on a condition variable, so a frame on the
 //! TAP had to wake a reactor thread first (async-io's), which then woke the
 //! executor: two thread switches per frame. Here the executor thread waits on
-//! the TAP's descriptor itself ([`poll_readable`]), and only wakes from other
-//! threads (embassy-time's alarm thread, async-io's reactor for the control
-//! socket) go through the eventfd.
+//! the TAP's descriptor itself ([`poll_readable`]), with the timer queue's
+//! next deadline as the timeout (src/time.rs); only wakes from other threads
+//! (async-io's reactor, for the control socket) go through the eventfd.
 
 use std::cell::RefCell;
 use std::io;
 use std::marker::PhantomData;
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd, RawFd};
+use std::sync::OnceLock;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::task::Waker;
 
 use embassy_executor::{Spawner, raw};
+
+use crate::time;
 
 /// Descriptors waited on at once besides the eventfd (the TAP).
 const MAX_WAITERS: usize = 4;
@@ -61,6 +64,24 @@ impl Signal {
         let mut count: u64 = 0;
         // SAFETY: reads at most 8 bytes into a live u64; non-blocking.
         let _ = unsafe { libc::read(self.eventfd.as_raw_fd(), (&raw mut count).cast(), 8) };
+    }
+}
+
+/// The executor's signal, for wakes that do not come through a waker.
+static SIGNAL: OnceLock<&'static Signal> = OnceLock::new();
+
+thread_local! {
+    /// True on the executor's thread.
+    static ON_EXECUTOR: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// A timer now falls due sooner: wakes the loop if that came from another
+/// thread (the loop reads the timers itself before it sleeps).
+pub fn timer_changed() {
+    if !ON_EXECUTOR.get()
+        && let Some(signal) = SIGNAL.get()
+    {
+        signal.signal();
     }
 }
 
@@ -123,12 +144,14 @@ impl Executor {
     /// A new executor; fails only if the kernel gives no eventfd.
     pub fn new() -> io::Result<Self> {
         let signal: &'static Signal = Box::leak(Box::new(Signal::new()?));
+        let _ = SIGNAL.set(signal);
         let context = std::ptr::from_ref(signal).cast_mut().cast::<()>();
         Ok(Self { inner: raw::Executor::new(context), signal, not_send: PhantomData })
     }
 
     /// Runs `init` with a spawner, then the tasks, forever.
     pub fn run(&'static mut self, init: impl FnOnce(Spawner)) -> ! {
+        ON_EXECUTOR.set(true);
         init(self.inner.spawner());
         let mut busy_rounds = 0;
         loop {
@@ -136,10 +159,14 @@ impl Executor {
             // SAFETY: `poll` runs only here, on this thread, never reentrantly
             // (the pender only sets flags and writes the eventfd).
             unsafe { self.inner.poll() };
+            let alarm = time::expire();
             self.signal.sleeping.store(true, Ordering::SeqCst);
             let idle = !self.signal.pending.load(Ordering::SeqCst);
-            if idle || busy_rounds >= MAX_BUSY_ROUNDS {
-                self.wait(idle);
+            if idle {
+                self.wait(Some(time::until(alarm)).filter(|_| alarm != u64::MAX));
+                busy_rounds = 0;
+            } else if busy_rounds >= MAX_BUSY_ROUNDS {
+                self.wait(Some(0));
                 busy_rounds = 0;
             } else {
                 busy_rounds += 1;
@@ -148,10 +175,10 @@ impl Executor {
         }
     }
 
-    /// Waits (`block`), or only looks (not `block`), until a waited-on
-    /// descriptor is readable or the eventfd is written, and wakes the tasks
-    /// whose descriptor is ready.
-    fn wait(&self, block: bool) {
+    /// Waits at most `timeout_us` microseconds (`None`: without end) until a
+    /// waited-on descriptor is readable or the eventfd is written, and wakes
+    /// the tasks whose descriptor is ready.
+    fn wait(&self, timeout_us: Option<u64>) {
         const IDLE: libc::pollfd = libc::pollfd { fd: -1, events: 0, revents: 0 };
         let eventfd = self.signal.eventfd.as_raw_fd();
         let mut fds = [IDLE; MAX_WAITERS + 1];
@@ -166,10 +193,16 @@ impl Executor {
                 }
             }
         });
-        let timeout = if block { -1 } else { 0 };
-        // SAFETY: `fds` is a live array of `fds.len()` pollfd; entries with a
-        // negative descriptor are ignored by the kernel.
-        let n = unsafe { libc::poll(fds.as_mut_ptr(), fds.len() as libc::nfds_t, timeout) };
+        let timeout = timeout_us.map(|us| libc::timespec {
+            tv_sec: libc::time_t::try_from(us / 1_000_000).unwrap_or(libc::time_t::MAX),
+            // Below 1e9: fits any c_long.
+            tv_nsec: ((us % 1_000_000) * 1_000) as libc::c_long,
+        });
+        let timeout_ptr = timeout.as_ref().map_or(std::ptr::null(), std::ptr::from_ref);
+        // SAFETY: `fds` is a live array of `fds.len()` pollfd (entries with a
+        // negative descriptor are ignored); `timeout_ptr` is null or points to
+        // a live timespec; no signal mask is passed.
+        let n = unsafe { libc::ppoll(fds.as_mut_ptr(), fds.len() as libc::nfds_t, timeout_ptr, std::ptr::null()) };
         // Awake again: the wakes below need no eventfd write.
         self.signal.sleeping.store(false, Ordering::SeqCst);
         if n <= 0 {

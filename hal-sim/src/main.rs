@@ -7,6 +7,7 @@ mod control;
 mod executor;
 mod sim;
 mod tap;
+mod time;
 
 use std::hash::{BuildHasher, Hasher, RandomState};
 use std::io::Write as _;
