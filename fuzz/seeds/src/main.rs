@@ -24,7 +24,13 @@ fn main() {
         write(&dir.join("handler"), &handler_seeds(), firmware_fuzz::handler),
         write(&dir.join("codec"), &codec_seeds(), firmware_fuzz::codec),
     ];
-    println!("fuzz-seeds: {} session, {} handler, {} codec seeds in {}", written[0], written[1], written[2], dir.display());
+    println!(
+        "fuzz-seeds: {} session, {} handler, {} codec seeds in {}",
+        written[0],
+        written[1],
+        written[2],
+        dir.display()
+    );
 }
 
 /// Runs each seed through `check`, then writes it as `DIR/seed-NN`.
@@ -51,9 +57,8 @@ fn with(frame: &[u8], at: usize, bytes: &[u8]) -> Vec<u8> {
 
 fn session_seeds() -> Vec<Vec<u8>> {
     let all: Vec<u8> = requests().flatten().copied().collect();
-    let seed = |flags: u8, unit_id: u8, cuts: &[u8], stream: &[u8]| {
-        SessionInput { flags, unit_id, cuts, stream }.to_bytes()
-    };
+    let seed =
+        |flags: u8, unit_id: u8, cuts: &[u8], stream: &[u8]| SessionInput { flags, unit_id, cuts, stream }.to_bytes();
     let mut seeds: Vec<Vec<u8>> = requests().map(|r| seed(0, 0, &[], r)).collect();
     seeds.extend([
         // Every fixture pipelined, in one read, in single bytes, in odd cuts.
