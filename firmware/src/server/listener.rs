@@ -39,7 +39,13 @@ pub async fn listen(stack: Stack<'_>, shared: &Shared<'_>, slot: SlotId) -> ! {
             warn!("slot {}: accept failed: {:?}", slot, e);
             continue;
         }
-        let peer = Peer::of(socket.remote_endpoint());
+        let endpoint = socket.remote_endpoint();
+        if endpoint.is_none() {
+            // Reset by the client before this task ran: nobody to refuse or serve.
+            info!("slot {}: the client left before it was served", slot);
+            continue;
+        }
+        let peer = Peer::of(endpoint);
         if !peer.address.is_some_and(|address| config.access.may_connect(address)) {
             Stats::count(&shared.stats().refused_connections);
             info!("slot {}: refused {} (not in the connect allow-list)", slot, peer);
