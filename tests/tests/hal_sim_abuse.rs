@@ -80,6 +80,10 @@ fn finish(sim: &mut HalSim, ledger: &Ledger) {
     });
     assert!(sim.is_running(), "hal-sim died; its log:\n{}", sim.log());
     assert!(!sim.log().contains("panicked"), "{}", sim.log());
+    // Everyone may connect (no allow-list): whatever the clients did, no
+    // connection counts as refused.
+    let stats = sim.control_ok("get stats");
+    assert!(stats.split_whitespace().any(|kv| kv == "refused_connections=0"), "get stats: {stats}");
 }
 
 #[test]
