@@ -11,7 +11,7 @@
 
 use std::time::Duration;
 
-use system_tests::abuse::{Ledger, Rng, modbus_frames, read_frames_until_close};
+use system_tests::abuse::{Ledger, Rng, modbus_frames, oracle_frames, read_frames_until_close};
 use system_tests::hal_sim::{HalSim, firmware_version, frame, read_frame};
 use tokio::io::AsyncWriteExt;
 use tokio_modbus::prelude::*;
@@ -248,6 +248,13 @@ fn random_byte_streams_are_answered_or_closed_and_change_only_acknowledged_point
     let ledger = sim.run(|| async {
         let mut rng = Rng::new(seed);
         let mut ledger = Ledger::new();
+        #[derive(Default)]
+        struct Counts {
+            requests: usize,
+            bad_protocol: usize,
+            bad_length: usize,
+        }
+        let mut expected = Counts::default();
         for round in 0..120 {
             // A quarter plain noise (almost always a bad length at once), the
             // rest requests with some junk among them.
@@ -286,9 +293,22 @@ fn random_byte_streams_are_answered_or_closed_and_change_only_acknowledged_point
             for (request, reply) in requests.iter().zip(&replies) {
                 ledger.record(request, reply);
             }
+            let (frames, lost) = oracle_frames(&stream);
+            expected.requests += requests.len();
+            expected.bad_protocol += frames.len() - requests.len();
+            expected.bad_length += usize::from(lost);
         }
         eprintln!("random streams: {} writes acknowledged", ledger.acknowledged());
         assert!(ledger.acknowledged() > 40, "the streams exercised writes");
+        // hal-sim's counters saw the same.
+        let stats = sim.control_ok("get stats");
+        for (name, value) in [
+            ("requests", expected.requests),
+            ("bad_protocol", expected.bad_protocol),
+            ("bad_length", expected.bad_length),
+        ] {
+            assert!(stats.split_whitespace().any(|kv| kv == format!("{name}={value}")), "{name}={value}: {stats}");
+        }
         ledger
     });
     finish(&mut sim, &ledger);
