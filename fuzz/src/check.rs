@@ -5,7 +5,7 @@ use std::sync::Mutex;
 
 use firmware::io::{OutputPins, Outputs};
 use firmware::map::{Image, WritePolicy};
-use firmware::server::Policy;
+use firmware::server::{Counters, Policy};
 
 use crate::be_u16;
 
@@ -102,6 +102,39 @@ pub fn check_reply(request: &[u8], reply: &[u8], policy: &Policy) -> bool {
         return false;
     }
     true
+}
+
+/// The diagnostics counters a session over these frames must leave: every
+/// Modbus frame counted, each exception by its code, a discarded frame as a
+/// bad protocol id, a lost stream as a bad length, and nothing else.
+pub fn expected_counters(
+    requests: &[&[u8]],
+    replies: &[&[u8]],
+    discarded: usize,
+    lost: bool,
+    policy: &Policy,
+) -> Counters {
+    let mut c = Counters {
+        requests: requests.len() as u32,
+        bad_protocol: discarded as u32,
+        bad_length: u32::from(lost),
+        ..Counters::default()
+    };
+    for (request, reply) in requests.iter().zip(replies) {
+        if reply[7] & 0x80 == 0 {
+            continue;
+        }
+        let write = [0x05, 0x06, 0x0f, 0x10].contains(&request[7]);
+        match reply[8] {
+            0x01 if write && policy.read_only => c.refused_writes += 1,
+            0x01 => c.bad_function += 1,
+            0x02 => c.bad_address += 1,
+            0x03 => c.bad_value += 1,
+            0x0b => c.other_unit += 1,
+            other => panic!("exception {other:#04x} to {request:02x?}"),
+        }
+    }
+    c
 }
 
 /// Output pins that remember what they were last told to drive.

@@ -100,6 +100,9 @@ pub fn session(data: &[u8]) {
     let image = server.read(Clone::clone);
     assert!(image == model.read(Clone::clone), "the map holds exactly the acknowledged writes");
     check::pins_follow_map(&pins, &image);
+    let frames = oracle_frames(input.stream).0.len();
+    let expected = check::expected_counters(&modbus, &replies, frames - modbus.len(), lost, &policy);
+    assert_eq!(server.stats().snapshot(), expected, "the diagnostics counters");
 }
 
 fn is_exception(reply: &[u8]) -> bool {
