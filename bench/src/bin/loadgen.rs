@@ -49,6 +49,8 @@ usage: loadgen --target IP:PORT [--connections 1] [--duration 10] [--warmup 1]
 const MAX_ADU_LEN: usize = 260;
 /// MBAP header: transaction id, protocol id, length, unit id.
 const MBAP_LEN: usize = 7;
+/// Errors printed per connection; the rest are only counted.
+const MAX_REPORTED_ERRORS: usize = 5;
 /// A latency sample: nanoseconds, saturated at `u32::MAX` (4.3 s).
 type Sample = u32;
 
@@ -298,7 +300,15 @@ async fn run_connection(
     let mut seq: u16 = (index as u16).wrapping_mul(7919);
     let mut transaction: u16 = 0;
     let mut kind = index % options.requests.len();
-    let report = |message: String| eprintln!("loadgen: connection {index}: {message}");
+    let mut reported = 0;
+    let mut report = |message: String| {
+        reported += 1;
+        if reported <= MAX_REPORTED_ERRORS {
+            eprintln!("loadgen: connection {index}: {message}");
+        } else if reported == MAX_REPORTED_ERRORS + 1 {
+            eprintln!("loadgen: connection {index}: further errors are counted, not printed");
+        }
+    };
     loop {
         let sent = Instant::now();
         if sent >= end {
