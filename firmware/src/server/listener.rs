@@ -1,5 +1,5 @@
 //! Accepting Modbus TCP clients on an embassy-net stack: one task per socket,
-//! one more socket than sessions so a new client is never refused.
+//! [`super::SPARE_SOCKETS`] more sockets than sessions so a new client is never refused.
 
 use core::fmt;
 use embassy_executor::{SpawnError, Spawner};
@@ -13,14 +13,18 @@ use crate::fmt::Ip;
 
 /// Receive buffer of each TCP socket: room for several pipelined requests.
 pub const SOCKET_RX_LEN: usize = 1024;
-/// Transmit buffer of each TCP socket: room for several replies.
-pub const SOCKET_TX_LEN: usize = 1024;
+/// Transmit buffer of each TCP socket: the largest reply (260 bytes) and
+/// some behind it; a client that pipelines faster than it reads is held
+/// back by TCP's flow control.
+pub const SOCKET_TX_LEN: usize = 512;
 /// Keep-alive probes find a peer that vanished (cable pulled) on an idle connection.
 const KEEP_ALIVE: Duration = Duration::from_secs(20);
 /// A connection whose peer stops acknowledging for this long is dropped by the stack.
 const TCP_TIMEOUT: Duration = Duration::from_secs(60);
-/// How long a closing connection may take to deliver its last bytes.
-const CLOSE_TIMEOUT: Duration = Duration::from_secs(1);
+/// How long a closing connection may take to deliver its last bytes and
+/// its FIN, then its RST; a LAN answers in well under a millisecond, so
+/// running out of it means lost packets or a peer gone quiet.
+pub const CLOSE_TIMEOUT: Duration = Duration::from_millis(250);
 
 /// Accepts clients on `slot`'s socket and serves them, one at a time, forever.
 ///
@@ -115,13 +119,13 @@ pub async fn listener_task(stack: Stack<'static>, shared: &'static Shared<'stati
     listen(stack, shared, slot).await
 }
 
-/// Spawns `max_connections + 1` listener tasks.
+/// Spawns `max_connections` + [`super::SPARE_SOCKETS`] listener tasks.
 pub fn spawn_listeners(
     spawner: Spawner,
     stack: Stack<'static>,
     shared: &'static Shared<'static>,
 ) -> Result<(), SpawnError> {
-    for slot in 0..=shared.config().max_connections {
+    for slot in 0..shared.config().max_connections + super::SPARE_SOCKETS {
         spawner.spawn(listener_task(stack, shared, slot)?);
     }
     Ok(())

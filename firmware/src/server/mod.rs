@@ -17,7 +17,7 @@ use embassy_time::{Duration, Instant, Ticker};
 
 pub use access::{Access, AllowList, Network};
 pub use handler::{Outcome, Policy};
-pub use listener::{SOCKET_RX_LEN, SOCKET_TX_LEN, listen, listener_task, spawn_listeners};
+pub use listener::{CLOSE_TIMEOUT, SOCKET_RX_LEN, SOCKET_TX_LEN, listen, listener_task, spawn_listeners};
 pub use session::{Error, SESSION_BUFFER_LEN, serve};
 pub use slots::{SlotId, Slots};
 pub use stats::{Counters, Stats};
@@ -42,10 +42,15 @@ pub const MAX_CONNECTIONS: usize = match option_env!("MODBUS_MAX_CONNECTIONS") {
     None => 8,
 };
 
-/// Sockets (and listener tasks): one more than [`MAX_CONNECTIONS`], so a new
-/// client is accepted even when all sessions are busy, and then the idlest
-/// session is closed to make room.
-pub const SOCKET_POOL: usize = MAX_CONNECTIONS + 1;
+/// Listening sockets kept beyond the sessions: a new client is accepted even
+/// when all sessions are busy (then the idlest session is closed to make
+/// room), and still finds one listening while another socket is closing,
+/// which can take up to [`CLOSE_TIMEOUT`] twice when packets are lost. Two,
+/// also because QEMU's slirp accepts a connection before the guest does.
+pub const SPARE_SOCKETS: usize = 2;
+
+/// Sockets (and listener tasks): [`MAX_CONNECTIONS`] + [`SPARE_SOCKETS`].
+pub const SOCKET_POOL: usize = MAX_CONNECTIONS + SPARE_SOCKETS;
 
 /// Default for [`Config::idle_timeout`].
 pub const IDLE_TIMEOUT: Duration = Duration::from_secs(60);
