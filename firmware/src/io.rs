@@ -66,9 +66,11 @@ pub struct Outputs {
     pub analog_input_types: [AnalogType; ANALOG_CHANNELS],
 }
 
-const ANALOG_OUTPUT_REGISTERS: [(u16, u16); ANALOG_CHANNELS] =
+/// Analog outputs 1 and 2: (value register, type register).
+pub const ANALOG_OUTPUT_REGISTERS: [(u16, u16); ANALOG_CHANNELS] =
     [(reg::ANALOG_OUTPUT_1, reg::ANALOG_OUTPUT_1_TYPE), (reg::ANALOG_OUTPUT_2, reg::ANALOG_OUTPUT_2_TYPE)];
-const ANALOG_INPUT_REGISTERS: [(u16, u16); ANALOG_CHANNELS] =
+/// Analog inputs 1 and 2: (value register, type register).
+pub const ANALOG_INPUT_REGISTERS: [(u16, u16); ANALOG_CHANNELS] =
     [(reg::ANALOG_INPUT_1, reg::ANALOG_INPUT_1_TYPE), (reg::ANALOG_INPUT_2, reg::ANALOG_INPUT_2_TYPE)];
 
 impl Outputs {
@@ -162,19 +164,21 @@ impl RobotStatus {
         power_button: false,
     };
 
+    /// Registers 259-264 as the map holds them.
+    pub const fn registers(&self) -> [u16; 6] {
+        [
+            self.state as u16,
+            self.servo_on as u16,
+            self.emergency_stop as u16,
+            self.safety_stop as u16,
+            self.direct_teach as u16,
+            self.power_button as u16,
+        ]
+    }
+
     /// Writes registers 259-264.
     pub fn apply(&self, image: &mut Image) {
-        image.set_registers(
-            reg::ROBOT_STATE,
-            &[
-                self.state as u16,
-                u16::from(self.servo_on),
-                u16::from(self.emergency_stop),
-                self.safety_stop as u16,
-                u16::from(self.direct_teach),
-                u16::from(self.power_button),
-            ],
-        );
+        image.set_registers(reg::ROBOT_STATE, &self.registers());
     }
 }
 

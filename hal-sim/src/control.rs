@@ -11,8 +11,8 @@ use std::path::Path;
 
 use async_io::Async;
 use embassy_executor::Spawner;
-use firmware::io::{ANALOG_CHANNELS, RobotState, RobotStatus};
-use firmware::map::table::{DIGITAL_PINS, TOOL_PINS, reg};
+use firmware::io::{ANALOG_CHANNELS, ANALOG_INPUT_REGISTERS, RobotState, RobotStatus};
+use firmware::map::table::{DIGITAL_PINS, TOOL_PINS};
 use firmware::sim_robot::Event;
 use futures_lite::{AsyncReadExt, AsyncWriteExt};
 
@@ -185,15 +185,7 @@ fn names() -> String {
 
 /// Registers 259-264 as the reply shows them: `STATE SERVO ESTOP SAFETY TEACH POWER`.
 pub fn status_words(status: &RobotStatus) -> String {
-    format!(
-        "{} {} {} {} {} {}",
-        status.state as u16,
-        u8::from(status.servo_on),
-        u8::from(status.emergency_stop),
-        status.safety_stop as u16,
-        u8::from(status.direct_teach),
-        u8::from(status.power_button),
-    )
+    status.registers().map(|value| value.to_string()).join(" ")
 }
 
 /// Runs `command` on the board; the reply line, without its newline.
@@ -219,7 +211,7 @@ pub fn execute(board: &Board, command: Command) -> String {
         Command::GetAnalogInput { channel } => {
             let (value, kind) = board.shared.read(|image| {
                 let types = firmware::io::analog_input_types(image);
-                let value = ANALOG_INPUT_REGISTERS.get(channel).map_or(0, |&address| image.register(address));
+                let value = ANALOG_INPUT_REGISTERS.get(channel).map_or(0, |&(address, _)| image.register(address));
                 (value, types.get(channel).copied().unwrap_or_default())
             });
             format!("ok {value} {}", kind.register())
@@ -245,9 +237,6 @@ pub fn execute(board: &Board, command: Command) -> String {
         Command::Help => HELP.into(),
     }
 }
-
-/// The registers of analog inputs 1 and 2.
-const ANALOG_INPUT_REGISTERS: [u16; ANALOG_CHANNELS] = [reg::ANALOG_INPUT_1, reg::ANALOG_INPUT_2];
 
 /// One reply for one line of bytes.
 pub fn reply(board: &Board, line: &[u8]) -> String {

@@ -59,9 +59,6 @@ pub const FRAME_TIMEOUT: Duration = Duration::from_secs(2);
 /// How often the source-backed points are refreshed and re-asserted.
 pub const REFRESH_PERIOD: Duration = Duration::from_millis(100);
 
-/// The registers of analog inputs 1 and 2.
-const ANALOG_INPUTS: [u16; io::ANALOG_CHANNELS] = [reg::ANALOG_INPUT_1, reg::ANALOG_INPUT_2];
-
 /// How the server runs. Built at start-up by each binary.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -240,7 +237,7 @@ impl<'a> Shared<'a> {
     pub fn set_analog_input(&self, channel: usize, value: u16) {
         self.update(|image| {
             let types = io::analog_input_types(image);
-            if let (Some(kind), Some(&address)) = (types.get(channel), ANALOG_INPUTS.get(channel)) {
+            if let (Some(kind), Some(&(address, _))) = (types.get(channel), io::ANALOG_INPUT_REGISTERS.get(channel)) {
                 image.set_register(address, value.min(kind.max()));
             }
         });
@@ -276,7 +273,7 @@ impl<'a> Shared<'a> {
         self.update(|image| {
             image.set_register(reg::DIGITAL_INPUTS, digital);
             image.set_register(reg::TOOL_INPUTS, u16::from(tool));
-            for (address, value) in ANALOG_INPUTS.into_iter().zip(analog) {
+            for ((address, _), value) in io::ANALOG_INPUT_REGISTERS.into_iter().zip(analog) {
                 image.set_register(address, value);
             }
             self.version.apply(image);

@@ -94,12 +94,13 @@ async fn run<S: Read + Write>(stream: &mut S, shared: &Shared<'_>, slot: SlotId)
             let frame = pending.get(..len).unwrap_or(&[]);
             match shared.respond_as(frame, &mut reply, &policy) {
                 Outcome::Reply { len, function, exception, .. } => {
-                    let code = u8::from(function);
-                    let address = be_u16(frame, ADDRESS).unwrap_or(0);
+                    // The address is read only when a line is logged (the
+                    // log macros evaluate their arguments only then).
+                    let address = || be_u16(frame, ADDRESS).unwrap_or(0);
                     if let Some(exception) = exception {
-                        info!("slot {}: function {:#x} at {}: {}", slot, code, address, exception);
+                        info!("slot {}: function {:#x} at {}: {}", slot, u8::from(function), address(), exception);
                     } else if function.is_write() {
-                        debug!("slot {}: function {:#x} wrote at {}", slot, code, address);
+                        debug!("slot {}: function {:#x} wrote at {}", slot, u8::from(function), address());
                     }
                     let out = reply.get(..len).unwrap_or(&[]);
                     let deadline = config.idle_timeout.map(|t| Instant::now() + t);

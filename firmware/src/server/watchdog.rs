@@ -11,7 +11,7 @@
 
 use embassy_time::{Duration, Instant};
 
-use crate::io::{ANALOG_CHANNELS, AnalogType};
+use crate::io::{ANALOG_CHANNELS, ANALOG_OUTPUT_REGISTERS, AnalogType};
 use crate::map::Image;
 use crate::map::table::reg;
 
@@ -35,9 +35,7 @@ impl SafeState {
     pub(crate) fn apply(&self, image: &mut Image) {
         image.set_register(reg::DIGITAL_OUTPUTS, self.digital);
         image.set_register(reg::TOOL_OUTPUTS, u16::from(self.tool) & TOOL_MASK);
-        let outputs =
-            [(reg::ANALOG_OUTPUT_1, reg::ANALOG_OUTPUT_1_TYPE), (reg::ANALOG_OUTPUT_2, reg::ANALOG_OUTPUT_2_TYPE)];
-        for ((value, kind), safe) in outputs.into_iter().zip(self.analog) {
+        for ((value, kind), safe) in ANALOG_OUTPUT_REGISTERS.into_iter().zip(self.analog) {
             let max = AnalogType::from_register(image.register(kind)).max();
             image.set_register(value, safe.min(max));
         }
