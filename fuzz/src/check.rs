@@ -3,9 +3,9 @@
 
 use std::sync::Mutex;
 
-use firmware::io::{OutputPins, Outputs};
-use firmware::map::{Image, WritePolicy};
-use firmware::server::{Counters, Policy};
+use adapter::io::{OutputPins, Outputs};
+use adapter::map::{Image, WritePolicy};
+use adapter::server::{Counters, Policy};
 
 use crate::be_u16;
 

@@ -2,7 +2,7 @@
 //! (missing header bytes read as 0), and [`SessionInput::to_bytes`] and
 //! [`HandlerInput::to_bytes`] write the seeds.
 
-use firmware::server::Policy;
+use adapter::server::Policy;
 
 use crate::check::write_policy;
 

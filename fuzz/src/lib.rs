@@ -19,10 +19,10 @@ use core::cell::Cell;
 use core::pin::pin;
 use core::task::Poll;
 
-use firmware::map::Image;
-use firmware::modbus::mbap::{self, MAX_ADU_LEN};
-use firmware::modbus::{Exception, Request, Response};
-use firmware::server::{self, Config, Error, Outcome, Policy, Shared, handler};
+use adapter::map::Image;
+use adapter::server::{self, Config, Error, Outcome, Policy, Shared, handler};
+use modbus::mbap::{self, MAX_ADU_LEN};
+use modbus::{Exception, Request, Response};
 
 use check::{Pins, check_reply, oracle_frames, split_replies};
 use connection::{Connection, poll_once};
@@ -32,7 +32,7 @@ pub use input::{HandlerInput, SessionInput};
 /// moves, but a session must not depend on that), the policy under test.
 fn shared(policy: Policy, pins: &Pins) -> Shared<'_> {
     let config = Config { policy, idle_timeout: None, ..Config::DEFAULT };
-    Shared::new(config, firmware::VERSION, pins)
+    Shared::new(config, adapter::VERSION, pins)
 }
 
 /// Bound on polls of one session: every `Pending` must come from the
@@ -115,7 +115,7 @@ pub fn handler(data: &[u8]) {
     let input = HandlerInput::parse(data);
     let policy = input.policy();
     let mut image = Image::new();
-    firmware::VERSION.apply(&mut image);
+    adapter::VERSION.apply(&mut image);
     let mut reply = [0xa5u8; MAX_ADU_LEN];
     for frame in input.frames() {
         let before = image.clone();

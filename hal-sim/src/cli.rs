@@ -5,11 +5,11 @@ use std::fmt;
 use std::net::Ipv4Addr;
 use std::path::PathBuf;
 
+use adapter::map::WritePolicy;
+use adapter::server::access::MAX_ALLOWED_NETWORKS;
+use adapter::server::{self, Access, AllowList, Config, Network, Policy, SafeState, Watchdog};
 use embassy_time::Duration;
-use firmware::map::WritePolicy;
-use firmware::server::access::MAX_ALLOWED_NETWORKS;
-use firmware::server::{self, Access, AllowList, Config, Network, Policy, SafeState, Watchdog};
-use firmware::sim_robot::Mode;
+use sim_robot::Mode;
 
 pub const USAGE: &str = "\
 usage: hal-sim --tap NAME [--ip CIDR] [--gateway IP] [--port 502] [--max-connections 8]
@@ -244,7 +244,7 @@ fn parse_cidr(text: &str) -> Result<(Ipv4Addr, u8), UsageError> {
 
 /// The largest analog value of either type (20 000 µA; a voltage output is
 /// clamped to 10 000 mV when the safe state applies).
-const ANALOG_MAX: u16 = firmware::map::table::ANALOG_MAX_MICROAMPS;
+const ANALOG_MAX: u16 = adapter::map::table::ANALOG_MAX_MICROAMPS;
 /// The longest `--watchdog`, in seconds (a day).
 pub const MAX_WATCHDOG_SECS: u64 = 24 * 3600;
 

@@ -9,12 +9,12 @@ use std::fmt::Write as _;
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::Path;
 
+use adapter::io::{ANALOG_CHANNELS, ANALOG_INPUT_REGISTERS, RobotState, RobotStatus};
+use adapter::map::table::{DIGITAL_PINS, TOOL_PINS};
 use async_io::Async;
 use embassy_executor::Spawner;
-use firmware::io::{ANALOG_CHANNELS, ANALOG_INPUT_REGISTERS, RobotState, RobotStatus};
-use firmware::map::table::{DIGITAL_PINS, TOOL_PINS};
-use firmware::sim_robot::Event;
 use futures_lite::{AsyncReadExt, AsyncWriteExt};
+use sim_robot::Event;
 
 use crate::sim::Board;
 
@@ -210,7 +210,7 @@ pub fn execute(board: &Board, command: Command) -> String {
         Command::GetToolInputs => format!("ok {}", board.inputs().1),
         Command::GetAnalogInput { channel } => {
             let (value, kind) = board.shared.read(|image| {
-                let types = firmware::io::analog_input_types(image);
+                let types = adapter::io::analog_input_types(image);
                 let value = ANALOG_INPUT_REGISTERS.get(channel).map_or(0, |&(address, _)| image.register(address));
                 (value, types.get(channel).copied().unwrap_or_default())
             });

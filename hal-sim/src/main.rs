@@ -13,10 +13,10 @@ use std::hash::{BuildHasher, Hasher, RandomState};
 use std::io::Write as _;
 use std::process::ExitCode;
 
+use adapter::server::{self, SOCKET_POOL, Shared, SlotId};
 use embassy_executor::Spawner;
 use embassy_net::{Ipv4Cidr, Runner, Stack, StackResources, StaticConfigV4};
-use firmware::server::{self, SOCKET_POOL, Shared};
-use firmware::sim_robot::SimRobot;
+use sim_robot::SimRobot;
 
 use crate::cli::{Action, Options};
 use crate::executor::Executor;
@@ -39,7 +39,7 @@ fn main() -> ExitCode {
             return ExitCode::SUCCESS;
         }
         Ok(Action::Version) => {
-            let firmware::io::Version { major, minor, patch } = firmware::VERSION;
+            let adapter::io::Version { major, minor, patch } = adapter::VERSION;
             println!("hal-sim {} (firmware {major}.{minor}.{patch})", env!("CARGO_PKG_VERSION"));
             return ExitCode::SUCCESS;
         }
@@ -85,7 +85,7 @@ fn run(
     let (stack, runner) = embassy_net::new(device, net_config, resources, RandomState::new().build_hasher().finish());
 
     let outputs: &'static OutputLatch = Box::leak(Box::new(OutputLatch::new()));
-    let shared: &'static Shared<'static> = Box::leak(Box::new(Shared::new(options.config, firmware::VERSION, outputs)));
+    let shared: &'static Shared<'static> = Box::leak(Box::new(Shared::new(options.config, adapter::VERSION, outputs)));
     shared.drive_outputs();
     let board: &'static Board = Box::leak(Box::new(Board::new(shared, outputs, SimRobot::new(options.robot))));
     let options: &'static Options = Box::leak(Box::new(options));
@@ -115,7 +115,9 @@ fn start(
 ) -> Result<(), embassy_executor::SpawnError> {
     spawner.spawn(net_task(runner)?);
     spawner.spawn(refresh_task(board)?);
-    server::spawn_listeners(spawner, stack, board.shared)?;
+    for slot in 0..SOCKET_POOL {
+        spawner.spawn(modbus_task(stack, board.shared, slot)?);
+    }
     if let Some(listener) = control {
         spawner.spawn(control::accept_task(spawner, listener, board)?);
     }
@@ -126,6 +128,12 @@ fn start(
 #[embassy_executor::task]
 async fn net_task(mut runner: Runner<'static, TunTapDevice>) -> ! {
     runner.run().await
+}
+
+/// One Modbus listener per socket.
+#[embassy_executor::task(pool_size = SOCKET_POOL)]
+async fn modbus_task(stack: Stack<'static>, shared: &'static Shared<'static>, slot: SlotId) -> ! {
+    server::listen(stack, shared, slot).await
 }
 
 #[embassy_executor::task]

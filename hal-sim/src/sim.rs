@@ -8,11 +8,11 @@
 
 use std::cell::{Cell, RefCell};
 
+use adapter::io::{ANALOG_CHANNELS, AnalogType, InputPins, OutputPins, Outputs, Robot, RobotStatus, Telemetry};
+use adapter::server::Shared;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use firmware::io::{ANALOG_CHANNELS, AnalogType, InputPins, OutputPins, Outputs, Robot, RobotStatus, Telemetry};
-use firmware::server::Shared;
-use firmware::sim_robot::{Event, Refused, SimRobot};
+use sim_robot::{Event, Refused, SimRobot};
 
 /// The simulated input pins: what the control socket last set.
 #[derive(Debug, Default)]

@@ -11,9 +11,9 @@
 
 use std::time::Duration;
 
-use firmware::map::Image;
-use firmware::modbus::mbap::MAX_ADU_LEN;
-use firmware::server::{Outcome, Policy, handler};
+use adapter::map::Image;
+use adapter::server::{Outcome, Policy, handler};
+use modbus::mbap::MAX_ADU_LEN;
 use tokio::io::{AsyncRead, AsyncReadExt};
 use tokio_modbus::client::Context;
 use tokio_modbus::prelude::Reader;
@@ -36,7 +36,7 @@ impl Ledger {
     /// A fresh map under hal-sim's default policy (every unit id, `seed` writes).
     pub fn new() -> Self {
         let mut model = Image::new();
-        firmware::VERSION.apply(&mut model);
+        adapter::VERSION.apply(&mut model);
         Self { model, policy: Policy::default(), acknowledged: 0 }
     }
 

@@ -38,8 +38,7 @@ use crate::netns::{DEVICE_IP, Namespace, TAP};
 /// Overrides the image under test.
 pub const ELF_ENV: &str = "FIRMWARE_MPS2_ELF";
 /// How the image is built (the README's test command runs it first).
-pub const BUILD_COMMAND: &str =
-    "cargo build -p firmware --release --target thumbv7em-none-eabihf --features mps2-an386 --bin mps2-an386";
+pub const BUILD_COMMAND: &str = "cargo build -p mps2-an386 --release --target thumbv7em-none-eabihf";
 /// `timeout` ends QEMU after this long whatever happens to the test.
 pub const QEMU_TIMEOUT: Duration = Duration::from_secs(300);
 /// Boot, link and address (DHCP, or its 3 s fallback) within this time.
@@ -81,7 +80,7 @@ pub fn image() -> PathBuf {
         )
     });
     let dep_info = std::fs::read_to_string(path.with_extension("d")).unwrap_or_default();
-    let manifest = workspace().join("firmware/Cargo.toml");
+    let manifest = workspace().join("firmware/mps2-an386/Cargo.toml");
     for source in dep_info_sources(&dep_info).into_iter().chain([manifest]) {
         let changed = modified(&source).is_some_and(|time| time > built);
         assert!(
@@ -123,9 +122,9 @@ fn dep_info_sources(dep_info: &str) -> Vec<PathBuf> {
     paths
 }
 
-/// The firmware crate's version, as the image reports it in registers 256-258.
+/// The firmware's version (the workspace's), as the image reports it in registers 256-258.
 pub fn firmware_version() -> [u16; 3] {
-    let manifest = std::fs::read_to_string(workspace().join("firmware/Cargo.toml")).expect("firmware/Cargo.toml");
+    let manifest = std::fs::read_to_string(workspace().join("Cargo.toml")).expect("Cargo.toml");
     let line = manifest.lines().find(|l| l.starts_with("version = ")).expect("a version line");
     let version = line.trim_start_matches("version = ").trim_matches('"');
     let parts: Vec<u16> = version.split('.').map(|p| p.parse().expect("a numeric version")).collect();

@@ -173,7 +173,7 @@ fn pipelined_bursts_larger_than_the_socket_buffers_are_answered_in_order() {
     const CLIENTS: u16 = 3;
     const REQUESTS: u16 = 400;
     const SPAN: u16 = 40;
-    assert!(usize::from(REQUESTS) * 12 > 4 * firmware::server::SOCKET_RX_LEN);
+    assert!(usize::from(REQUESTS) * 12 > 4 * adapter::server::SOCKET_RX_LEN);
     let mut sim = HalSim::start(&ARGS);
     let ledger = sim.run(|| async {
         // Each client writes and reads its own 40 registers: alternating an

@@ -10,9 +10,9 @@
 use std::hint::black_box;
 use std::process::ExitCode;
 
-use firmware::map::Image;
-use firmware::modbus::mbap::MAX_ADU_LEN;
-use firmware::server::handler::{self, Outcome, Policy};
+use adapter::map::Image;
+use adapter::server::handler::{self, Outcome, Policy};
+use modbus::mbap::MAX_ADU_LEN;
 use rmodbus::server::ModbusFrame;
 use rmodbus::server::storage::ModbusStorageSmall;
 use rmodbus::{ModbusFrameBuf, ModbusProto};

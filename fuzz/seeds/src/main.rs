@@ -1,5 +1,5 @@
 //! Writes the seed corpora of the fuzz targets from the codec fixtures
-//! (`firmware::modbus::fixtures::PYMODBUS`, bytes captured from pymodbus):
+//! (`test_support::fixtures::PYMODBUS`, bytes captured from pymodbus):
 //!
 //! ```text
 //! cargo run -p fuzz-seeds -- DIR    # writes DIR/session, DIR/handler, DIR/codec
@@ -10,9 +10,9 @@
 
 use std::path::{Path, PathBuf};
 
-use firmware::modbus::fixtures::PYMODBUS;
 use firmware_fuzz::input::{PARTIAL_WRITES, STALL_READS, STRICT, UNIT_FILTER};
 use firmware_fuzz::{HandlerInput, SessionInput};
+use test_support::fixtures::PYMODBUS;
 
 fn main() {
     let dir = std::env::args_os().nth(1).map(PathBuf::from).unwrap_or_else(|| {

@@ -1,0 +1,37 @@
+//! Modbus TCP I/O adapter: the logic shared by the firmware images and hal-sim.
+//!
+//! - [`modbus`]: the wire codec (MBAP framing, request and response PDUs).
+//! - [`map`]: the data map as one declarative table, and the process image.
+//! - [`server`]: request handling, sessions over any `embedded-io-async`
+//!   stream, connection slots with eviction, and the embassy-net listener.
+//! - [`io`]: the hardware seam a board implements (pins, robot data).
+//!
+//! The library is `no_std` and allocation-free; every size is a named constant.
+#![cfg_attr(not(test), no_std)]
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::indexing_slicing))]
+
+#[macro_use]
+pub mod fmt;
+
+pub mod io;
+pub mod map;
+pub mod server;
+pub mod settings;
+
+/// The wire codec this core speaks (its own crate: no map, no async).
+pub use modbus;
+
+/// This firmware's version, reported in registers 256-258.
+pub const VERSION: io::Version = io::Version {
+    major: parse_u16(env!("CARGO_PKG_VERSION_MAJOR")),
+    minor: parse_u16(env!("CARGO_PKG_VERSION_MINOR")),
+    patch: parse_u16(env!("CARGO_PKG_VERSION_PATCH")),
+};
+
+/// Parses a decimal `u16` at compile time (0 for anything else).
+pub(crate) const fn parse_u16(text: &str) -> u16 {
+    match u16::from_str_radix(text, 10) {
+        Ok(value) => value,
+        Err(_) => 0,
+    }
+}

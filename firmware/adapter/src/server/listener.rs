@@ -1,0 +1,113 @@
+//! Accepting Modbus TCP clients on an embassy-net stack: one task per socket,
+//! [`super::SPARE_SOCKETS`] more sockets than sessions so a new client is never refused.
+
+use core::fmt;
+
+use embassy_net::tcp::TcpSocket;
+use embassy_net::{IpAddress, IpEndpoint, Stack};
+use embassy_time::{Duration, Instant, with_timeout};
+
+use super::{Shared, SlotId, Stats, serve};
+use crate::fmt::Ip;
+
+/// Receive buffer of each TCP socket: room for several pipelined requests.
+pub const SOCKET_RX_LEN: usize = 1024;
+/// Transmit buffer of each TCP socket: the largest reply (260 bytes) and
+/// some behind it; a client that pipelines faster than it reads is held
+/// back by TCP's flow control.
+pub const SOCKET_TX_LEN: usize = 512;
+/// Keep-alive probes find a peer that vanished (cable pulled) on an idle connection.
+const KEEP_ALIVE: Duration = Duration::from_secs(20);
+/// A connection whose peer stops acknowledging for this long is dropped by the stack.
+const TCP_TIMEOUT: Duration = Duration::from_secs(60);
+/// How long a closing connection may take to deliver its last bytes and
+/// its FIN, then its RST; a LAN answers in well under a millisecond, so
+/// running out of it means lost packets or a peer gone quiet.
+pub const CLOSE_TIMEOUT: Duration = Duration::from_millis(250);
+
+/// Accepts clients on `slot`'s socket and serves them, one at a time, forever.
+///
+/// A client outside the connect allow-list is reset at once; one outside
+/// the write allow-list is served read-only.
+pub async fn listen(stack: Stack<'_>, shared: &Shared<'_>, slot: SlotId) -> ! {
+    let mut rx = [0u8; SOCKET_RX_LEN];
+    let mut tx = [0u8; SOCKET_TX_LEN];
+    let config = shared.config();
+    loop {
+        let mut socket = TcpSocket::new(stack, &mut rx, &mut tx);
+        socket.set_nagle_enabled(false);
+        socket.set_keep_alive(Some(KEEP_ALIVE));
+        socket.set_timeout(Some(TCP_TIMEOUT));
+        if let Err(e) = socket.accept(config.port).await {
+            warn!("slot {}: accept failed: {:?}", slot, e);
+            continue;
+        }
+        let endpoint = socket.remote_endpoint();
+        if endpoint.is_none() {
+            // Reset by the client before this task ran: nobody to refuse or serve.
+            info!("slot {}: the client left before it was served", slot);
+            continue;
+        }
+        let peer = Peer::of(endpoint);
+        if !peer.address.is_some_and(|address| config.access.may_connect(address)) {
+            Stats::count(&shared.stats().refused_connections);
+            info!("slot {}: refused {} (not in the connect allow-list)", slot, peer);
+            socket.abort();
+            let _ = with_timeout(CLOSE_TIMEOUT, socket.flush()).await;
+            continue;
+        }
+        let read_only = !peer.address.is_some_and(|address| config.access.may_write(address));
+        info!("slot {}: connection from {}{}", slot, peer, if read_only { " (read-only)" } else { "" });
+        if let Some(victim) = shared.slots().open(slot, config.max_connections, Instant::now(), read_only) {
+            Stats::count(&shared.stats().evictions);
+            info!("slot {}: all sessions busy, closing the idlest (slot {})", slot, victim);
+        }
+        match serve(&mut socket, shared, slot).await {
+            Ok(()) => info!("slot {}: {} closed the connection", slot, peer),
+            Err(e) => info!("slot {}: closing {}: {}", slot, peer, e),
+        }
+        shared.slots().close(slot);
+        socket.close();
+        let _ = with_timeout(CLOSE_TIMEOUT, socket.flush()).await;
+        socket.abort();
+        let _ = with_timeout(CLOSE_TIMEOUT, socket.flush()).await;
+    }
+}
+
+/// A client's IPv4 address (`None`: not IPv4, never allowed) and port, as
+/// logs show it (through [`Ip`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Peer {
+    address: Option<[u8; 4]>,
+    port: u16,
+}
+
+impl Peer {
+    fn of(endpoint: Option<IpEndpoint>) -> Self {
+        #[allow(unreachable_patterns, reason = "IPv6 exists only when another crate enables it")]
+        let address = endpoint.and_then(|endpoint| match endpoint.addr {
+            IpAddress::Ipv4(address) => Some(address.octets()),
+            _ => None,
+        });
+        Self { address, port: endpoint.map_or(0, |endpoint| endpoint.port) }
+    }
+}
+
+impl fmt::Display for Peer {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.address {
+            Some(address) => write!(f, "{}:{}", Ip(address), self.port),
+            None => write!(f, "a non-IPv4 client"),
+        }
+    }
+}
+
+#[cfg(feature = "defmt")]
+impl defmt::Format for Peer {
+    fn format(&self, f: defmt::Formatter<'_>) {
+        match self.address {
+            Some(address) => defmt::write!(f, "{}:{}", Ip(address), self.port),
+            None => defmt::write!(f, "a non-IPv4 client"),
+        }
+    }
+}

@@ -1,0 +1,548 @@
+//! Protocol data units: requests and responses of the six function codes this
+//! server implements (Modbus Application Protocol V1.1b3, section 6).
+//!
+//! Parsing follows the per-function state diagrams: an unknown function code
+//! is exception 01; a quantity, byte count, coil value or PDU length that is
+//! not allowed is exception 03. Address checks (exception 02) need the data
+//! map and happen when the request is executed.
+
+use core::fmt;
+
+use super::{Exception, be_u16, put_be_u16};
+
+macro_rules! function_codes {
+    ($( $(#[$doc:meta])* $name:ident = $code:literal ),* $(,)?) => {
+        /// A function code (V1.1b3, 5.1), with a fallback for the ones this
+        /// server does not implement.
+        #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+        #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+        pub enum FunctionCode {
+            $( $(#[$doc])* $name, )*
+            /// Any other code: answered with exception 01.
+            Unknown(u8),
+        }
+
+        impl From<u8> for FunctionCode {
+            fn from(code: u8) -> Self {
+                match code {
+                    $( $code => Self::$name, )*
+                    other => Self::Unknown(other),
+                }
+            }
+        }
+
+        impl From<FunctionCode> for u8 {
+            fn from(code: FunctionCode) -> u8 {
+                match code {
+                    $( FunctionCode::$name => $code, )*
+                    FunctionCode::Unknown(other) => other,
+                }
+            }
+        }
+    };
+}
+
+function_codes! {
+    /// 0x01 Read Coils (6.1).
+    ReadCoils = 0x01,
+    /// 0x03 Read Holding Registers (6.3).
+    ReadHoldingRegisters = 0x03,
+    /// 0x05 Write Single Coil (6.5).
+    WriteSingleCoil = 0x05,
+    /// 0x06 Write Single Register (6.6).
+    WriteSingleRegister = 0x06,
+    /// 0x0F Write Multiple Coils (6.11).
+    WriteMultipleCoils = 0x0F,
+    /// 0x10 Write Multiple Registers (6.12).
+    WriteMultipleRegisters = 0x10,
+}
+
+impl FunctionCode {
+    /// Whether the function changes the map (05, 06, 0F, 10).
+    pub const fn is_write(self) -> bool {
+        matches!(
+            self,
+            Self::WriteSingleCoil | Self::WriteSingleRegister | Self::WriteMultipleCoils | Self::WriteMultipleRegisters
+        )
+    }
+}
+
+/// The bit that marks an exception response's function code.
+pub const EXCEPTION_FLAG: u8 = 0x80;
+/// Read Coils: most coils in one request (6.1).
+pub const MAX_READ_COILS: u16 = 2000;
+/// Read Holding Registers: most registers in one request (6.3).
+pub const MAX_READ_REGISTERS: u16 = 125;
+/// Write Multiple Coils: most coils in one request (6.11).
+pub const MAX_WRITE_COILS: u16 = 1968;
+/// Write Multiple Registers: most registers in one request (6.12).
+pub const MAX_WRITE_REGISTERS: u16 = 123;
+/// Write Single Coil: the value that turns a coil on (6.5).
+pub const COIL_ON: u16 = 0xFF00;
+/// Write Single Coil: the value that turns a coil off (6.5).
+pub const COIL_OFF: u16 = 0x0000;
+
+/// Bytes that hold `quantity` packed coils.
+pub const fn coil_bytes(quantity: u16) -> usize {
+    (quantity as usize).div_ceil(8)
+}
+
+/// A request PDU. Multiple writes borrow their values from the frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Request<'a> {
+    /// Read `quantity` coils from `start`.
+    ReadCoils { start: u16, quantity: u16 },
+    /// Read `quantity` holding registers from `start`.
+    ReadHoldingRegisters { start: u16, quantity: u16 },
+    /// Set one coil.
+    WriteSingleCoil { address: u16, value: bool },
+    /// Set one holding register.
+    WriteSingleRegister { address: u16, value: u16 },
+    /// Set `quantity` coils from `start`; `values` packs them LSB first.
+    WriteMultipleCoils { start: u16, quantity: u16, values: &'a [u8] },
+    /// Set `quantity` registers from `start`; `values` holds them big-endian.
+    WriteMultipleRegisters { start: u16, quantity: u16, values: &'a [u8] },
+}
+
+impl<'a> Request<'a> {
+    /// Parses a request PDU (function code and data).
+    pub fn parse(pdu: &'a [u8]) -> Result<Self, Exception> {
+        let (&code, data) = pdu.split_first().ok_or(Exception::IllegalFunction)?;
+        let function = FunctionCode::from(code);
+        // Every known function starts with two 16-bit fields.
+        let field = |offset| be_u16(data, offset).ok_or(Exception::IllegalDataValue);
+        let fixed = || {
+            if data.len() == 4 { Ok((field(0)?, field(2)?)) } else { Err(Exception::IllegalDataValue) }
+        };
+        let quantity_in = |quantity: u16, max: u16| {
+            if (1..=max).contains(&quantity) { Ok(quantity) } else { Err(Exception::IllegalDataValue) }
+        };
+        match function {
+            FunctionCode::ReadCoils => {
+                let (start, quantity) = fixed()?;
+                let quantity = quantity_in(quantity, MAX_READ_COILS)?;
+                Ok(Self::ReadCoils { start, quantity })
+            }
+            FunctionCode::ReadHoldingRegisters => {
+                let (start, quantity) = fixed()?;
+                let quantity = quantity_in(quantity, MAX_READ_REGISTERS)?;
+                Ok(Self::ReadHoldingRegisters { start, quantity })
+            }
+            FunctionCode::WriteSingleCoil => {
+                let (address, value) = fixed()?;
+                let value = match value {
+                    COIL_ON => true,
+                    COIL_OFF => false,
+                    _ => return Err(Exception::IllegalDataValue),
+                };
+                Ok(Self::WriteSingleCoil { address, value })
+            }
+            FunctionCode::WriteSingleRegister => {
+                let (address, value) = fixed()?;
+                Ok(Self::WriteSingleRegister { address, value })
+            }
+            FunctionCode::WriteMultipleCoils => {
+                let (start, quantity, values) = Self::multiple(data)?;
+                let quantity = quantity_in(quantity, MAX_WRITE_COILS)?;
+                if values.len() != coil_bytes(quantity) {
+                    return Err(Exception::IllegalDataValue);
+                }
+                Ok(Self::WriteMultipleCoils { start, quantity, values })
+            }
+            FunctionCode::WriteMultipleRegisters => {
+                let (start, quantity, values) = Self::multiple(data)?;
+                let quantity = quantity_in(quantity, MAX_WRITE_REGISTERS)?;
+                if values.len() != 2 * usize::from(quantity) {
+                    return Err(Exception::IllegalDataValue);
+                }
+                Ok(Self::WriteMultipleRegisters { start, quantity, values })
+            }
+            FunctionCode::Unknown(_) => Err(Exception::IllegalFunction),
+        }
+    }
+
+    /// `start | quantity | byte count | values`, with the byte count matching
+    /// the bytes that follow it.
+    fn multiple(data: &'a [u8]) -> Result<(u16, u16, &'a [u8]), Exception> {
+        let bad = Exception::IllegalDataValue;
+        let start = be_u16(data, 0).ok_or(bad)?;
+        let quantity = be_u16(data, 2).ok_or(bad)?;
+        let (&count, values) = data.get(4..).and_then(<[u8]>::split_first).ok_or(bad)?;
+        if values.len() != usize::from(count) {
+            return Err(bad);
+        }
+        Ok((start, quantity, values))
+    }
+
+    /// The function code of this request.
+    pub fn function(&self) -> FunctionCode {
+        match self {
+            Self::ReadCoils { .. } => FunctionCode::ReadCoils,
+            Self::ReadHoldingRegisters { .. } => FunctionCode::ReadHoldingRegisters,
+            Self::WriteSingleCoil { .. } => FunctionCode::WriteSingleCoil,
+            Self::WriteSingleRegister { .. } => FunctionCode::WriteSingleRegister,
+            Self::WriteMultipleCoils { .. } => FunctionCode::WriteMultipleCoils,
+            Self::WriteMultipleRegisters { .. } => FunctionCode::WriteMultipleRegisters,
+        }
+    }
+
+    /// Whether this request changes the map.
+    pub fn is_write(&self) -> bool {
+        self.function().is_write()
+    }
+
+    /// Bytes that [`Request::emit`] writes.
+    pub fn buffer_len(&self) -> usize {
+        match self {
+            Self::WriteMultipleCoils { values, .. } | Self::WriteMultipleRegisters { values, .. } => 6 + values.len(),
+            _ => 5,
+        }
+    }
+
+    /// Writes the PDU into `buf`; returns its length, or `None` if `buf` is
+    /// shorter than [`Request::buffer_len`] or a value list is too long to count.
+    pub fn emit(&self, buf: &mut [u8]) -> Option<usize> {
+        let len = self.buffer_len();
+        let out = buf.get_mut(..len)?;
+        let (a, b) = match *self {
+            Self::ReadCoils { start, quantity }
+            | Self::ReadHoldingRegisters { start, quantity }
+            | Self::WriteMultipleCoils { start, quantity, .. }
+            | Self::WriteMultipleRegisters { start, quantity, .. } => (start, quantity),
+            Self::WriteSingleCoil { address, value } => (address, if value { COIL_ON } else { COIL_OFF }),
+            Self::WriteSingleRegister { address, value } => (address, value),
+        };
+        if let Self::WriteMultipleCoils { values, .. } | Self::WriteMultipleRegisters { values, .. } = self {
+            let count = u8::try_from(values.len()).ok()?;
+            *out.get_mut(5)? = count;
+            out.get_mut(6..)?.copy_from_slice(values);
+        }
+        *out.first_mut()? = self.function().into();
+        put_be_u16(out, 1, a);
+        put_be_u16(out, 3, b);
+        Some(len)
+    }
+}
+
+/// A response PDU.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Response<'a> {
+    /// Coil states, packed LSB first, padded with zeros.
+    ReadCoils { values: &'a [u8] },
+    /// Register values, big-endian.
+    ReadHoldingRegisters { values: &'a [u8] },
+    /// Echo of a single coil write.
+    WriteSingleCoil { address: u16, value: bool },
+    /// Echo of a single register write.
+    WriteSingleRegister { address: u16, value: u16 },
+    /// Acknowledges a multiple coil write.
+    WriteMultipleCoils { start: u16, quantity: u16 },
+    /// Acknowledges a multiple register write.
+    WriteMultipleRegisters { start: u16, quantity: u16 },
+    /// Function code (without the exception flag) and the exception.
+    Exception { function: u8, exception: Exception },
+}
+
+/// A response PDU that is not one this server could have sent.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Malformed;
+
+impl fmt::Display for Malformed {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str("malformed response PDU")
+    }
+}
+
+impl core::error::Error for Malformed {}
+
+impl<'a> Response<'a> {
+    /// Parses a response PDU (a client's side; used by tests and tools).
+    pub fn parse(pdu: &'a [u8]) -> Result<Self, Malformed> {
+        let (&code, data) = pdu.split_first().ok_or(Malformed)?;
+        if code & EXCEPTION_FLAG != 0 {
+            return match data {
+                [exception] => Ok(Self::Exception {
+                    function: code & !EXCEPTION_FLAG,
+                    exception: Exception::from_code(*exception).ok_or(Malformed)?,
+                }),
+                _ => Err(Malformed),
+            };
+        }
+        let counted = || match data.split_first() {
+            Some((&count, values)) if values.len() == usize::from(count) => Ok(values),
+            _ => Err(Malformed),
+        };
+        let fixed = || match data {
+            [a, b, c, d] => Ok((u16::from_be_bytes([*a, *b]), u16::from_be_bytes([*c, *d]))),
+            _ => Err(Malformed),
+        };
+        match FunctionCode::from(code) {
+            FunctionCode::ReadCoils => Ok(Self::ReadCoils { values: counted()? }),
+            FunctionCode::ReadHoldingRegisters => {
+                let values = counted()?;
+                if values.len() % 2 != 0 {
+                    return Err(Malformed);
+                }
+                Ok(Self::ReadHoldingRegisters { values })
+            }
+            FunctionCode::WriteSingleCoil => {
+                let (address, value) = fixed()?;
+                let value = match value {
+                    COIL_ON => true,
+                    COIL_OFF => false,
+                    _ => return Err(Malformed),
+                };
+                Ok(Self::WriteSingleCoil { address, value })
+            }
+            FunctionCode::WriteSingleRegister => {
+                let (address, value) = fixed()?;
+                Ok(Self::WriteSingleRegister { address, value })
+            }
+            FunctionCode::WriteMultipleCoils => {
+                let (start, quantity) = fixed()?;
+                Ok(Self::WriteMultipleCoils { start, quantity })
+            }
+            FunctionCode::WriteMultipleRegisters => {
+                let (start, quantity) = fixed()?;
+                Ok(Self::WriteMultipleRegisters { start, quantity })
+            }
+            FunctionCode::Unknown(_) => Err(Malformed),
+        }
+    }
+
+    /// Bytes that [`Response::emit`] writes.
+    pub fn buffer_len(&self) -> usize {
+        match self {
+            Self::ReadCoils { values } | Self::ReadHoldingRegisters { values } => 2 + values.len(),
+            Self::Exception { .. } => 2,
+            _ => 5,
+        }
+    }
+
+    /// Writes the PDU into `buf`; returns its length, or `None` if it does not fit.
+    pub fn emit(&self, buf: &mut [u8]) -> Option<usize> {
+        let len = self.buffer_len();
+        let out = buf.get_mut(..len)?;
+        match *self {
+            Self::ReadCoils { values } | Self::ReadHoldingRegisters { values } => {
+                let (head, rest) = out.split_at_mut_checked(2)?;
+                head.copy_from_slice(&[self.code(), u8::try_from(values.len()).ok()?]);
+                rest.copy_from_slice(values);
+            }
+            Self::Exception { exception, .. } => out.copy_from_slice(&[self.code(), exception.code()]),
+            Self::WriteSingleCoil { address, value } => {
+                emit_fixed(out, self.code(), address, if value { COIL_ON } else { COIL_OFF })
+            }
+            Self::WriteSingleRegister { address: a, value: b }
+            | Self::WriteMultipleCoils { start: a, quantity: b }
+            | Self::WriteMultipleRegisters { start: a, quantity: b } => emit_fixed(out, self.code(), a, b),
+        }
+        Some(len)
+    }
+
+    /// The function code byte on the wire.
+    fn code(&self) -> u8 {
+        let function = match self {
+            Self::ReadCoils { .. } => FunctionCode::ReadCoils,
+            Self::ReadHoldingRegisters { .. } => FunctionCode::ReadHoldingRegisters,
+            Self::WriteSingleCoil { .. } => FunctionCode::WriteSingleCoil,
+            Self::WriteSingleRegister { .. } => FunctionCode::WriteSingleRegister,
+            Self::WriteMultipleCoils { .. } => FunctionCode::WriteMultipleCoils,
+            Self::WriteMultipleRegisters { .. } => FunctionCode::WriteMultipleRegisters,
+            Self::Exception { function, .. } => return function | EXCEPTION_FLAG,
+        };
+        function.into()
+    }
+}
+
+fn emit_fixed(out: &mut [u8], code: u8, a: u16, b: u16) {
+    if let Some(first) = out.first_mut() {
+        *first = code;
+    }
+    put_be_u16(out, 1, a);
+    put_be_u16(out, 3, b);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mbap::{Frame, HEADER_LEN};
+    use test_support::fixtures::PYMODBUS;
+
+    fn pdu(adu: &[u8]) -> &[u8] {
+        &adu[HEADER_LEN..]
+    }
+
+    #[test]
+    fn parses_captured_requests() {
+        let parsed: Vec<_> = PYMODBUS.iter().map(|f| Request::parse(pdu(f.request)).unwrap()).collect();
+        assert_eq!(
+            parsed,
+            [
+                Request::ReadHoldingRegisters { start: 256, quantity: 3 },
+                Request::ReadCoils { start: 16, quantity: 10 },
+                Request::WriteSingleCoil { address: 16, value: true },
+                Request::WriteSingleRegister { address: 128, value: 0x1234 },
+                Request::WriteMultipleCoils { start: 16, quantity: 10, values: &[0x0d, 0x03] },
+                Request::WriteMultipleRegisters { start: 128, quantity: 2, values: &[0x00, 0x0a, 0x01, 0x02] },
+            ]
+        );
+    }
+
+    #[test]
+    fn requests_and_responses_round_trip() {
+        for fixture in &PYMODBUS {
+            let request = Request::parse(pdu(fixture.request)).unwrap();
+            let mut buf = [0xa5u8; 300];
+            let len = request.emit(&mut buf).unwrap();
+            assert_eq!(len, request.buffer_len());
+            assert_eq!(&buf[..len], pdu(fixture.request), "{}", fixture.name);
+            assert_eq!(buf[len], 0xa5, "{}: nothing written past the PDU", fixture.name);
+
+            let response = Response::parse(pdu(fixture.reply)).unwrap();
+            let mut buf = [0xa5u8; 300];
+            let len = response.emit(&mut buf).unwrap();
+            assert_eq!(len, response.buffer_len());
+            assert_eq!(&buf[..len], pdu(fixture.reply), "{}", fixture.name);
+            assert_eq!(buf[len], 0xa5);
+        }
+    }
+
+    #[test]
+    fn every_prefix_of_every_fixture_is_incomplete_or_an_error() {
+        for fixture in &PYMODBUS {
+            for n in 0..fixture.request.len() {
+                let prefix = &fixture.request[..n];
+                assert!(Frame::new_checked(prefix).is_err(), "{} request prefix {n}", fixture.name);
+                // The PDU layer alone rejects a cut PDU too.
+                let cut = prefix.get(HEADER_LEN..).unwrap_or(&[]);
+                assert!(Request::parse(cut).is_err(), "{} request PDU prefix {n}", fixture.name);
+            }
+            for n in 0..fixture.reply.len() {
+                let prefix = &fixture.reply[..n];
+                assert!(Frame::new_checked(prefix).is_err(), "{} reply prefix {n}", fixture.name);
+                let cut = prefix.get(HEADER_LEN..).unwrap_or(&[]);
+                assert!(Response::parse(cut).is_err(), "{} reply PDU prefix {n}", fixture.name);
+            }
+        }
+    }
+
+    #[test]
+    fn unknown_and_exception_flagged_codes_are_illegal_function() {
+        for code in [0x00, 0x02, 0x04, 0x07, 0x11, 0x2b, 0x7f, 0x81, 0x83, 0xff] {
+            assert_eq!(Request::parse(&[code, 0, 0, 0, 1]), Err(Exception::IllegalFunction), "{code:#x}");
+            assert_eq!(Request::parse(&[code]), Err(Exception::IllegalFunction));
+        }
+        assert_eq!(Request::parse(&[]), Err(Exception::IllegalFunction));
+    }
+
+    fn read(code: u8, quantity: u16) -> Result<Request<'static>, Exception> {
+        let [hi, lo] = quantity.to_be_bytes();
+        Request::parse(Box::leak(Box::new([code, 0, 0, hi, lo])))
+    }
+
+    #[test]
+    fn read_quantity_limits() {
+        for (code, max) in [(0x01, MAX_READ_COILS), (0x03, MAX_READ_REGISTERS)] {
+            assert_eq!(read(code, 0), Err(Exception::IllegalDataValue));
+            assert!(read(code, 1).is_ok());
+            assert!(read(code, max).is_ok());
+            assert_eq!(read(code, max + 1), Err(Exception::IllegalDataValue));
+            assert_eq!(read(code, u16::MAX), Err(Exception::IllegalDataValue));
+        }
+    }
+
+    fn write_coils(quantity: u16, count: usize) -> Result<Request<'static>, Exception> {
+        let [hi, lo] = quantity.to_be_bytes();
+        let mut pdu = vec![0x0f, 0, 0, hi, lo, count as u8];
+        pdu.extend(std::iter::repeat_n(0u8, count));
+        Request::parse(pdu.leak())
+    }
+
+    fn write_registers(quantity: u16, count: usize) -> Result<Request<'static>, Exception> {
+        let [hi, lo] = quantity.to_be_bytes();
+        let mut pdu = vec![0x10, 0, 0, hi, lo, count as u8];
+        pdu.extend(std::iter::repeat_n(0u8, count));
+        Request::parse(pdu.leak())
+    }
+
+    #[test]
+    fn write_multiple_coils_limits() {
+        assert_eq!(write_coils(0, 0), Err(Exception::IllegalDataValue));
+        assert!(write_coils(1, 1).is_ok());
+        assert!(write_coils(8, 1).is_ok());
+        assert_eq!(write_coils(9, 1), Err(Exception::IllegalDataValue), "byte count must be ceil(q/8)");
+        assert_eq!(write_coils(8, 2), Err(Exception::IllegalDataValue));
+        assert!(write_coils(MAX_WRITE_COILS, 246).is_ok());
+        assert_eq!(write_coils(MAX_WRITE_COILS + 1, 247), Err(Exception::IllegalDataValue));
+    }
+
+    #[test]
+    fn write_multiple_registers_limits() {
+        assert_eq!(write_registers(0, 0), Err(Exception::IllegalDataValue));
+        assert!(write_registers(1, 2).is_ok());
+        assert_eq!(write_registers(1, 1), Err(Exception::IllegalDataValue), "byte count must be 2q");
+        assert!(write_registers(MAX_WRITE_REGISTERS, 246).is_ok());
+        assert_eq!(write_registers(MAX_WRITE_REGISTERS + 1, 248), Err(Exception::IllegalDataValue));
+    }
+
+    #[test]
+    fn byte_count_must_match_the_bytes_that_follow() {
+        // Says 4 bytes, carries 2.
+        assert_eq!(Request::parse(&[0x10, 0, 0, 0, 2, 4, 0, 1]), Err(Exception::IllegalDataValue));
+        // Says 2 bytes, carries 3.
+        assert_eq!(Request::parse(&[0x10, 0, 0, 0, 1, 2, 0, 1, 9]), Err(Exception::IllegalDataValue));
+        // No byte count at all.
+        assert_eq!(Request::parse(&[0x0f, 0, 0, 0, 1]), Err(Exception::IllegalDataValue));
+    }
+
+    #[test]
+    fn single_coil_value_is_checked() {
+        assert!(Request::parse(&[0x05, 0, 16, 0xff, 0x00]).is_ok());
+        assert!(Request::parse(&[0x05, 0, 16, 0x00, 0x00]).is_ok());
+        for bad in [[0x00, 0x01], [0xff, 0xff], [0x01, 0x00], [0xff, 0x01]] {
+            assert_eq!(Request::parse(&[0x05, 0, 16, bad[0], bad[1]]), Err(Exception::IllegalDataValue));
+        }
+        // Checked before the address: even a far address gets 03 for a bad value.
+        assert_eq!(Request::parse(&[0x05, 0xff, 0xff, 0x12, 0x34]), Err(Exception::IllegalDataValue));
+    }
+
+    #[test]
+    fn fixed_length_pdus_must_be_exact() {
+        for code in [0x01, 0x03, 0x05, 0x06] {
+            assert_eq!(Request::parse(&[code, 0, 0, 0]), Err(Exception::IllegalDataValue));
+            assert_eq!(Request::parse(&[code, 0, 0, 0, 1, 0]), Err(Exception::IllegalDataValue));
+        }
+    }
+
+    #[test]
+    fn exception_responses() {
+        let mut buf = [0xa5u8; 4];
+        let response = Response::Exception { function: 0x03, exception: Exception::IllegalDataAddress };
+        assert_eq!(response.emit(&mut buf), Some(2));
+        assert_eq!(buf, [0x83, 0x02, 0xa5, 0xa5]);
+        assert_eq!(Response::parse(&buf[..2]), Ok(response));
+        assert_eq!(Response::parse(&[0x83, 0x09]), Err(Malformed));
+        assert_eq!(Response::parse(&[0x83]), Err(Malformed));
+    }
+
+    #[test]
+    fn emit_refuses_short_buffers() {
+        let request = Request::WriteMultipleRegisters { start: 0, quantity: 2, values: &[0, 1, 0, 2] };
+        let mut short = [0u8; 9];
+        assert_eq!(request.emit(&mut short), None);
+        let response = Response::ReadHoldingRegisters { values: &[0; 250] };
+        assert_eq!(response.emit(&mut [0u8; 251]), None);
+        assert_eq!(response.emit(&mut [0u8; 252]), Some(252));
+    }
+
+    #[test]
+    fn function_codes_round_trip() {
+        for code in 0..=u8::MAX {
+            assert_eq!(u8::from(FunctionCode::from(code)), code);
+        }
+    }
+}

@@ -1,0 +1,139 @@
+//! Arm MPS2 with the AN386 FPGA image (Cortex-M4F at 25 MHz), as QEMU's
+//! `mps2-an386` machine models it: the image's test bench.
+//!
+//! | what | where |
+//! |---|---|
+//! | code (ZBT SSRAM1, writable in QEMU) | `0x0000_0000`, 4 MiB (`memory.x`) |
+//! | data, stack (ZBT SSRAM2/3) | `0x2000_0000`, 4 MiB |
+//! | FPGA IO `LED0` (2 user LEDs) | `0x4002_8000` |
+//! | LAN9118 Ethernet | `0x4020_0000`, NVIC IRQ 13 |
+//!
+//! Digital outputs 1 and 2 drive the two FPGA user LEDs ([`Leds`]). QEMU's
+//! GPIO blocks are placeholders (reads 0, writes dropped), so every other
+//! point lives only in the process image: the inputs read 0 ([`RamInputs`]).
+//!
+//! [`lan9118`] is plain logic and builds (and is tested) on the host; the
+//! rest needs the `mps2-an386` feature and the Cortex-M target.
+
+pub use self::hw::*;
+
+/// The core clock (QEMU's `mps2-an386` SYSCLK).
+pub const CPU_HZ: u32 = 25_000_000;
+/// The LAN9118's register window.
+pub const LAN9118_BASE: usize = 0x4020_0000;
+/// The LAN9118's NVIC interrupt line.
+pub const LAN9118_IRQ: u16 = 13;
+/// The FPGA IO block's `LED0` register: bit n lights user LED n.
+pub const FPGAIO_LED0: usize = 0x4002_8000;
+/// The digital outputs (bit n = output n + 1) that have an LED: outputs 1 and 2.
+pub const LED_OUTPUTS: u16 = 0b11;
+
+/// Inputs with no pin behind them: they hold what is stored here (0).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RamInputs {
+    pub digital: u16,
+    pub tool: u8,
+    pub analog: [u16; adapter::io::ANALOG_CHANNELS],
+}
+
+impl adapter::io::InputPins for RamInputs {
+    fn digital(&mut self) -> u16 {
+        self.digital
+    }
+
+    fn tool(&mut self) -> u8 {
+        self.tool
+    }
+
+    fn analog(&mut self, channel: usize, kind: adapter::io::AnalogType) -> u16 {
+        self.analog.get(channel).copied().unwrap_or(0).min(kind.max())
+    }
+}
+
+mod hw {
+    use core::ptr;
+    use core::task::Waker;
+
+    use cortex_m::interrupt::InterruptNumber;
+    use cortex_m::peripheral::NVIC;
+    use embassy_sync::waitqueue::AtomicWaker;
+
+    use super::{FPGAIO_LED0, LAN9118_BASE, LAN9118_IRQ, LED_OUTPUTS};
+    use crate::{runtime, systick};
+    use adapter::io::{OutputPins, Outputs};
+    use lan9118::{self, Lan9118};
+
+    /// Woken by the LAN9118's interrupt.
+    static ETHERNET_WAKER: AtomicWaker = AtomicWaker::new();
+
+    #[derive(Clone, Copy)]
+    struct Irq(u16);
+
+    // SAFETY: `Irq` only ever holds a line this board has (the LAN9118's, or
+    // one reported by the NVIC itself).
+    unsafe impl InterruptNumber for Irq {
+        fn number(self) -> u16 {
+            self.0
+        }
+    }
+
+    /// Brings the board up, once (later calls return `None`): the 1 kHz
+    /// time base, then the LAN9118, reset and configured.
+    pub fn init() -> Option<Result<Lan9118<Mmio>, lan9118::Error>> {
+        let peripherals = cortex_m::Peripherals::take()?;
+        systick::start(peripherals.SYST);
+        Some(Lan9118::new(Mmio { _private: () }))
+    }
+
+    /// The LAN9118's registers in the memory map, and its interrupt line.
+    #[derive(Debug)]
+    pub struct Mmio {
+        _private: (),
+    }
+
+    impl lan9118::Interface for Mmio {
+        fn read(&mut self, offset: u8) -> u32 {
+            // SAFETY: the window is 256 bytes of 32-bit registers at
+            // LAN9118_BASE; only `Mmio` (one instance) touches it.
+            unsafe { ptr::read_volatile((LAN9118_BASE + usize::from(offset)) as *const u32) }
+        }
+
+        fn write(&mut self, offset: u8, value: u32) {
+            // SAFETY: as for `read`.
+            unsafe { ptr::write_volatile((LAN9118_BASE + usize::from(offset)) as *mut u32, value) }
+        }
+
+        fn arm(&mut self, waker: &Waker) {
+            ETHERNET_WAKER.register(waker);
+            // SAFETY: the handler only masks the line and wakes the waker;
+            // no critical section depends on the line being masked.
+            unsafe { NVIC::unmask(Irq(LAN9118_IRQ)) };
+        }
+    }
+
+    /// Device interrupts (there is no PAC, so cortex-m-rt sends them all
+    /// here). The LAN9118's line is masked and its waker woken: the driver
+    /// reads the chip and unmasks the line when the stack polls it.
+    #[cortex_m_rt::exception]
+    unsafe fn DefaultHandler(irqn: i16) {
+        let Ok(line) = u16::try_from(irqn) else { runtime::unexpected_exception(irqn) };
+        NVIC::mask(Irq(line));
+        if line == LAN9118_IRQ {
+            ETHERNET_WAKER.wake();
+        } else {
+            defmt::warn!("masked unexpected interrupt {=u16}", line);
+        }
+    }
+
+    /// Digital outputs 1 and 2 on the FPGA IO user LEDs.
+    #[derive(Clone, Copy, Debug, Default)]
+    pub struct Leds;
+
+    impl OutputPins for Leds {
+        fn drive(&self, outputs: &Outputs) {
+            let value = u32::from(outputs.digital & LED_OUTPUTS);
+            // SAFETY: LED0 is a plain read-write register of the FPGA IO block.
+            unsafe { ptr::write_volatile(FPGAIO_LED0 as *mut u32, value) }
+        }
+    }
+}

@@ -1,0 +1,235 @@
+//! NUCLEO-F429ZI (STM32F429ZI, LAN8742A PHY over RMII): the real I/O adapter.
+//!
+//! - [`init`]: clocks (180 MHz from the ST-LINK's 8 MHz MCO, HSE bypass), the
+//!   watchdog, the pins, the ADC and DAC, and the Ethernet MAC + PHY.
+//! - [`net`]: the MAC address from the unique ID, DHCP with a static fallback
+//!   ([`settings`]), link loss and link return.
+//! - [`pins`]: the 44 digital points, the analog points and the input edges
+//!   (EXTI for the 16 ControlBox inputs, timer input capture for the 6 tool
+//!   inputs: the chip has only 16 EXTI lines).
+//! - [`leds`]: link, Modbus traffic and fault on LD1-LD3.
+//! - [`safety`]: the independent watchdog, the HardFault handler, the reset cause.
+//!
+//! The pin table with header positions is in `docs/nucleo-f429zi.md`.
+
+use embassy_executor::{SpawnError, Spawner};
+use embassy_net::Stack;
+use embassy_stm32::adc::{Adc, AdcChannel};
+use embassy_stm32::dac::Dac;
+use embassy_stm32::eth::Ethernet;
+use embassy_stm32::exti::{ExtiInput, TriggerEdge};
+use embassy_stm32::gpio::{Level, Output, Pin, Speed};
+use embassy_stm32::peripherals::{IWDG, RNG, TIM3, TIM4};
+use embassy_stm32::rng::Rng;
+use embassy_stm32::time::Hertz;
+use embassy_stm32::timer::{Ch1, Ch2, Ch3, Ch4};
+use embassy_stm32::wdg::IndependentWatchdog;
+use embassy_stm32::{bind_interrupts, eth, rng};
+use static_cell::StaticCell;
+
+use crate::pins::{self, CaptureTimer, Edges, INPUT_PULL, output};
+use crate::{leds, net, safety, settings};
+use adapter::server::Shared;
+
+bind_interrupts!(
+    /// Every interrupt the board uses, bound to its handler.
+    pub struct Irqs {
+        ETH => eth::InterruptHandler;
+        HASH_RNG => rng::InterruptHandler<RNG>;
+        EXTI0 => pins::EdgeInterrupt;
+        EXTI1 => pins::EdgeInterrupt;
+        EXTI2 => pins::EdgeInterrupt;
+        EXTI3 => pins::EdgeInterrupt;
+        EXTI4 => pins::EdgeInterrupt;
+        EXTI9_5 => pins::EdgeInterrupt;
+        EXTI15_10 => pins::EdgeInterrupt;
+        TIM3 => pins::CaptureInterrupt<TIM3>;
+        TIM4 => pins::CaptureInterrupt<TIM4>;
+    }
+);
+
+/// The core clock.
+pub const SYSCLK: Hertz = Hertz(180_000_000);
+
+/// Clocks: the ST-LINK's 8 MHz MCO drives OSC_IN (HSE bypass); PLL 8 / 4 x 180 / 2 = 180 MHz
+/// (over-drive on, which embassy-stm32 enables for this chip); AHB 180, APB1 45, APB2 90 MHz;
+/// PLL Q = 45 MHz for the RNG (it needs at most 48 MHz).
+fn clocks() -> embassy_stm32::Config {
+    use embassy_stm32::rcc::{
+        AHBPrescaler, APBPrescaler, Hse, HseMode, Pll, PllMul, PllPDiv, PllPreDiv, PllQDiv, PllSource, Sysclk,
+    };
+    let mut config = embassy_stm32::Config::default();
+    config.rcc.hse = Some(Hse { freq: Hertz(8_000_000), mode: HseMode::Bypass });
+    config.rcc.pll_src = PllSource::HSE;
+    config.rcc.pll = Some(Pll {
+        prediv: PllPreDiv::DIV4,
+        mul: PllMul::MUL180,
+        divp: Some(PllPDiv::DIV2),
+        divq: Some(PllQDiv::DIV8),
+        divr: None,
+    });
+    config.rcc.ahb_pre = AHBPrescaler::DIV1;
+    config.rcc.apb1_pre = APBPrescaler::DIV4;
+    config.rcc.apb2_pre = APBPrescaler::DIV2;
+    config.rcc.sys = Sysclk::PLL1_P;
+    config
+}
+
+/// Everything [`init`] brings up, handed to the binary.
+pub struct Board {
+    /// The Ethernet MAC and PHY, for `embassy_net::new`.
+    pub ethernet: net::Device,
+    /// The MAC address in use (from the unique ID).
+    pub mac: [u8; 6],
+    /// A seed for the network stack (TCP sequence numbers, DHCP ids), from the RNG.
+    pub seed: u64,
+    /// The outputs, for `Shared::new`.
+    pub outputs: &'static pins::Outputs,
+    /// The inputs for the 100 ms refresh (debounced digital levels, the ADC).
+    pub inputs: pins::Inputs,
+    /// What the board's own tasks run on; see [`spawn`].
+    pub tasks: Tasks,
+}
+
+impl core::fmt::Debug for Board {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Board").field("mac", &self.mac).finish_non_exhaustive()
+    }
+}
+
+/// What the board's background tasks own.
+pub struct Tasks {
+    watchdog: IndependentWatchdog<'static, IWDG>,
+    edges: &'static Edges,
+    leds: leds::Leds,
+}
+
+impl core::fmt::Debug for Tasks {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Tasks").field("edges", &self.edges).finish_non_exhaustive()
+    }
+}
+
+/// Brings the board up: clocks, watchdog (running from here on), outputs
+/// off, inputs with their edge interrupts, ADC, DAC, RNG and Ethernet.
+pub fn init() -> Board {
+    let p = embassy_stm32::init(clocks());
+    let reset = safety::take_reset_cause();
+    defmt::info!("NUCLEO-F429ZI at {} MHz; last reset: {}", SYSCLK.0 / 1_000_000, reset);
+
+    // From here on a stall (in the rest of bring-up, or of the executor) resets the MCU.
+    let watchdog = safety::start_watchdog(p.IWDG);
+
+    safety::register_fault_led(p.PB14.port(), p.PB14.pin());
+    let leds = leds::Leds {
+        link: Output::new(p.PB0, Level::Low, Speed::Low),
+        traffic: Output::new(p.PB7, Level::Low, Speed::Low),
+        fault: Output::new(p.PB14, Level::Low, Speed::Low),
+        watchdog_reset: reset == safety::ResetCause::Watchdog,
+    };
+
+    // Outputs first, all off.
+    let (dac1, dac2) = Dac::new_blocking(p.DAC1, p.PA4, p.PA5).split();
+    static OUTPUTS: StaticCell<pins::Outputs> = StaticCell::new();
+    let outputs = &*OUTPUTS.init(pins::Outputs::new(pins::OutputPins {
+        digital: [
+            p.PF0.into(),
+            p.PF1.into(),
+            p.PF2.into(),
+            p.PF3.into(),
+            p.PF4.into(),
+            p.PF5.into(),
+            p.PF7.into(),
+            p.PF8.into(),
+            p.PF9.into(),
+            p.PF10.into(),
+            p.PF12.into(),
+            p.PF13.into(),
+            p.PF14.into(),
+            p.PF15.into(),
+            p.PG2.into(),
+            p.PG3.into(),
+        ]
+        .map(output),
+        tool: [p.PD0.into(), p.PD1.into(), p.PD2.into(), p.PD3.into(), p.PD4.into(), p.PD5.into()].map(output),
+        analog_input_mode: [p.PD6.into(), p.PD7.into()].map(output),
+        analog_output_mode: [p.PC8.into(), p.PC9.into()].map(output),
+        dac: [dac1, dac2],
+    }));
+
+    // ControlBox inputs: EXTI line n - 1 for input n, both edges.
+    let digital = [
+        ExtiInput::new_blocking(p.PE0, p.EXTI0, INPUT_PULL, TriggerEdge::Any),
+        ExtiInput::new_blocking(p.PG1, p.EXTI1, INPUT_PULL, TriggerEdge::Any),
+        ExtiInput::new_blocking(p.PE2, p.EXTI2, INPUT_PULL, TriggerEdge::Any),
+        ExtiInput::new_blocking(p.PE3, p.EXTI3, INPUT_PULL, TriggerEdge::Any),
+        ExtiInput::new_blocking(p.PE4, p.EXTI4, INPUT_PULL, TriggerEdge::Any),
+        ExtiInput::new_blocking(p.PE5, p.EXTI5, INPUT_PULL, TriggerEdge::Any),
+        ExtiInput::new_blocking(p.PE6, p.EXTI6, INPUT_PULL, TriggerEdge::Any),
+        ExtiInput::new_blocking(p.PE7, p.EXTI7, INPUT_PULL, TriggerEdge::Any),
+        ExtiInput::new_blocking(p.PE8, p.EXTI8, INPUT_PULL, TriggerEdge::Any),
+        ExtiInput::new_blocking(p.PE9, p.EXTI9, INPUT_PULL, TriggerEdge::Any),
+        ExtiInput::new_blocking(p.PE10, p.EXTI10, INPUT_PULL, TriggerEdge::Any),
+        ExtiInput::new_blocking(p.PE11, p.EXTI11, INPUT_PULL, TriggerEdge::Any),
+        ExtiInput::new_blocking(p.PE12, p.EXTI12, INPUT_PULL, TriggerEdge::Any),
+        ExtiInput::new_blocking(p.PE13, p.EXTI13, INPUT_PULL, TriggerEdge::Any),
+        ExtiInput::new_blocking(p.PE14, p.EXTI14, INPUT_PULL, TriggerEdge::Any),
+        ExtiInput::new_blocking(p.PE15, p.EXTI15, INPUT_PULL, TriggerEdge::Any),
+    ];
+    // Tool inputs: timer input capture on both edges.
+    let tim4 = CaptureTimer::new(p.TIM4, Irqs);
+    let tim3 = CaptureTimer::new(p.TIM3, Irqs);
+    let tool = [
+        tim4.pin::<Ch1>(p.PD12),
+        tim4.pin::<Ch2>(p.PD13),
+        tim4.pin::<Ch3>(p.PD14),
+        tim4.pin::<Ch4>(p.PD15),
+        tim3.pin::<Ch1>(p.PC6),
+        tim3.pin::<Ch2>(p.PC7),
+    ];
+    static EDGES: StaticCell<Edges> = StaticCell::new();
+    let edges = &*EDGES.init(Edges::new(digital, tool, tim4, tim3));
+
+    let inputs = pins::Inputs::new(edges, Adc::new(p.ADC1), [p.PA3.degrade_adc(), p.PC0.degrade_adc()]);
+
+    let seed = Rng::new(p.RNG, Irqs).next_u64();
+    let mac = settings::mac_from_uid(&embassy_stm32::uid::uid());
+    defmt::info!("MAC {:02x}", mac);
+    // RMII: REF_CLK PA1, CRS_DV PA7, RXD0 PC4, RXD1 PC5, TXD0 PG13, TXD1 PB13, TX_EN PG11; MDIO PA2, MDC PC1.
+    let ethernet = Ethernet::new(
+        net::packets(),
+        p.ETH,
+        Irqs,
+        p.PA1,
+        p.PA7,
+        p.PC4,
+        p.PC5,
+        p.PG13,
+        p.PB13,
+        p.PG11,
+        mac,
+        p.ETH_SMA,
+        p.PA2,
+        p.PC1,
+    );
+
+    Board { ethernet, mac, seed, outputs, inputs, tasks: Tasks { watchdog, edges, leds } }
+}
+
+/// Spawns the board's own tasks: the watchdog feeder, the network runner,
+/// the link supervisor, the input edges and the LEDs.
+pub fn spawn(
+    spawner: Spawner,
+    tasks: Tasks,
+    runner: net::Runner,
+    stack: Stack<'static>,
+    shared: &'static Shared<'static>,
+) -> Result<(), SpawnError> {
+    let Tasks { watchdog, edges, leds } = tasks;
+    spawner.spawn(safety::watchdog_task(watchdog)?);
+    spawner.spawn(net::runner_task(runner)?);
+    spawner.spawn(net::link_task(stack, shared)?);
+    spawner.spawn(pins::edge_task(edges, shared)?);
+    spawner.spawn(leds::led_task(leds, stack, shared)?);
+    Ok(())
+}

@@ -1,0 +1,58 @@
+//! The three user LEDs:
+//!
+//! | LED | colour | pin | shows |
+//! |---|---|---|---|
+//! | LD1 | green | PB0 | off: no Ethernet link; blinking: link, no address yet; on: link and address |
+//! | LD2 | blue | PB7 | flashes for each Modbus connection and request ([`TRAFFIC_FLASH`]) |
+//! | LD3 | red | PB14 | on: a fault (outputs off, reset follows); on for [`WATCHDOG_SHOWN`] after a watchdog reset |
+
+use embassy_net::Stack;
+use embassy_stm32::gpio::{Level, Output};
+use embassy_time::{Duration, Instant, Ticker};
+
+use adapter::server::Shared;
+
+/// How often the LEDs are updated, and how long a traffic flash lasts.
+pub const TRAFFIC_FLASH: Duration = Duration::from_millis(50);
+/// The link LED's blink half-period while no address is configured, in LED ticks.
+const BLINK_TICKS: u32 = 5;
+/// How long LD3 stays on after a watchdog reset.
+pub const WATCHDOG_SHOWN: Duration = Duration::from_secs(10);
+
+/// The LEDs and what the last reset was.
+pub struct Leds {
+    pub link: Output<'static>,
+    pub traffic: Output<'static>,
+    pub fault: Output<'static>,
+    /// The last reset came from the watchdog.
+    pub watchdog_reset: bool,
+}
+
+impl core::fmt::Debug for Leds {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Leds").field("watchdog_reset", &self.watchdog_reset).finish_non_exhaustive()
+    }
+}
+
+/// Drives the LEDs from the link state and the session slots.
+#[embassy_executor::task]
+pub async fn led_task(mut leds: Leds, stack: Stack<'static>, shared: &'static Shared<'static>) -> ! {
+    let mut ticker = Ticker::every(TRAFFIC_FLASH);
+    let fault_until = Instant::now() + if leds.watchdog_reset { WATCHDOG_SHOWN } else { Duration::from_ticks(0) };
+    let mut seen = shared.slots().last_activity();
+    let mut tick = 0u32;
+    loop {
+        let blink_on = (tick / BLINK_TICKS).is_multiple_of(2);
+        let link = stack.is_link_up() && (stack.is_config_up() || blink_on);
+        leds.link.set_level(Level::from(link));
+
+        // Request times only grow, so anything newer than `seen` is new traffic.
+        let activity = shared.slots().last_activity();
+        leds.traffic.set_level(Level::from(activity > seen));
+        seen = seen.max(activity);
+
+        leds.fault.set_level(Level::from(Instant::now() < fault_until));
+        tick = tick.wrapping_add(1);
+        ticker.next().await;
+    }
+}
