@@ -9,7 +9,7 @@ use std::fmt::Write as _;
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::Path;
 
-use adapter::io::{ANALOG_CHANNELS, ANALOG_INPUT_REGISTERS, RobotState, RobotStatus};
+use adapter::io::{ANALOG_CHANNELS, RobotState, RobotStatus};
 use adapter::map::table::{DIGITAL_PINS, TOOL_PINS};
 use async_io::Async;
 use embassy_executor::Spawner;
@@ -209,10 +209,9 @@ pub fn execute(board: &Board, command: Command) -> String {
         Command::GetDigitalInputs => format!("ok {}", board.inputs().0),
         Command::GetToolInputs => format!("ok {}", board.inputs().1),
         Command::GetAnalogInput { channel } => {
-            let (value, kind) = board.shared.read(|image| {
-                let types = adapter::io::analog_input_types(image);
-                let value = ANALOG_INPUT_REGISTERS.get(channel).map_or(0, |&(address, _)| image.register(address));
-                (value, types.get(channel).copied().unwrap_or_default())
+            let (value, kind) = board.device.read(|image| {
+                let kind = image.analog_input_types().get(channel).copied().unwrap_or_default();
+                (image.analog_input(channel), kind)
             });
             format!("ok {value} {}", kind.register())
         }
@@ -223,7 +222,7 @@ pub fn execute(board: &Board, command: Command) -> String {
             format!("ok {} {}", output.value, output.kind.register())
         }
         Command::GetRobot => format!("ok {}", status_words(&board.robot_status())),
-        Command::GetStats => format!("ok {}", board.shared.stats().snapshot()),
+        Command::GetStats => format!("ok {}", board.device.stats().snapshot()),
         Command::Robot(event) => match board.robot_event(event) {
             Ok(status) => {
                 log::info!("control: robot {:?}: state {:?}", event, status.state);

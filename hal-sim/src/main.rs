@@ -13,15 +13,19 @@ use std::hash::{BuildHasher, Hasher, RandomState};
 use std::io::Write as _;
 use std::process::ExitCode;
 
-use adapter::server::{self, SOCKET_POOL, Shared, SlotId};
+use adapter::device::{self, Device};
+use adapter::server::{self, SOCKET_POOL, Server, SlotId};
 use embassy_executor::Spawner;
-use embassy_net::{Ipv4Cidr, Runner, Stack, StackResources, StaticConfigV4};
+use embassy_net::{Runner, Stack, StackResources};
 use sim_robot::SimRobot;
 
 use crate::cli::{Action, Options};
 use crate::executor::Executor;
 use crate::sim::{Board, OutputLatch};
 use crate::tap::TunTapDevice;
+
+/// The Modbus server over the simulated device.
+type ModbusServer = Server<'static, Device<'static>>;
 
 /// Exit status for a command line hal-sim cannot run with.
 const EXIT_USAGE: u8 = 2;
@@ -35,7 +39,7 @@ fn main() -> ExitCode {
     let options = match cli::parse(std::env::args().skip(1)) {
         Ok(Action::Run(options)) => *options,
         Ok(Action::Help) => {
-            println!("{}", cli::USAGE);
+            println!("{}", cli::usage());
             return ExitCode::SUCCESS;
         }
         Ok(Action::Version) => {
@@ -44,7 +48,7 @@ fn main() -> ExitCode {
             return ExitCode::SUCCESS;
         }
         Err(e) => {
-            eprintln!("hal-sim: error: {e}\n\n{}", cli::USAGE);
+            eprintln!("hal-sim: error: {e}\n\n{}", cli::usage());
             return ExitCode::from(EXIT_USAGE);
         }
     };
@@ -76,18 +80,17 @@ fn run(
     device: TunTapDevice,
     control: Option<async_io::Async<std::os::unix::net::UnixListener>>,
 ) -> ! {
-    let net_config = embassy_net::Config::ipv4_static(StaticConfigV4 {
-        address: Ipv4Cidr::new(options.address, options.prefix_len),
-        gateway: options.gateway,
-        dns_servers: Default::default(),
-    });
-    let resources = Box::leak(Box::new(StackResources::<SOCKET_POOL>::new()));
+    let net_config = adapter::net::initial_config(&options.settings.network);
+    // The Modbus listeners, and DHCP's socket when the mode is dhcp.
+    let resources = Box::leak(Box::new(StackResources::<{ SOCKET_POOL + 1 }>::new()));
     let (stack, runner) = embassy_net::new(device, net_config, resources, RandomState::new().build_hasher().finish());
 
     let outputs: &'static OutputLatch = Box::leak(Box::new(OutputLatch::new()));
-    let shared: &'static Shared<'static> = Box::leak(Box::new(Shared::new(options.config, adapter::VERSION, outputs)));
-    shared.drive_outputs();
-    let board: &'static Board = Box::leak(Box::new(Board::new(shared, outputs, SimRobot::new(options.robot))));
+    let device: &'static Device<'static> =
+        Box::leak(Box::new(Device::new(options.settings.watchdog(), adapter::VERSION, outputs)));
+    device.drive_outputs();
+    let server: &'static ModbusServer = Box::leak(Box::new(Server::new(options.settings.server_config(), device)));
+    let board: &'static Board = Box::leak(Box::new(Board::new(device, outputs, SimRobot::new(options.robot))));
     let options: &'static Options = Box::leak(Box::new(options));
 
     let executor: &'static mut Executor = match Executor::new() {
@@ -98,7 +101,7 @@ fn run(
         }
     };
     executor.run(|spawner| {
-        if let Err(e) = start(spawner, stack, runner, board, options, control) {
+        if let Err(e) = start(spawner, stack, runner, board, server, options, control) {
             eprintln!("hal-sim: cannot start its tasks: {e:?}");
             std::process::exit(i32::from(EXIT_UNAVAILABLE));
         }
@@ -110,18 +113,20 @@ fn start(
     stack: Stack<'static>,
     runner: Runner<'static, TunTapDevice>,
     board: &'static Board,
+    server: &'static ModbusServer,
     options: &'static Options,
     control: Option<async_io::Async<std::os::unix::net::UnixListener>>,
 ) -> Result<(), embassy_executor::SpawnError> {
     spawner.spawn(net_task(runner)?);
+    spawner.spawn(link_task(stack, server, options)?);
     spawner.spawn(refresh_task(board)?);
     for slot in 0..SOCKET_POOL {
-        spawner.spawn(modbus_task(stack, board.shared, slot)?);
+        spawner.spawn(modbus_task(stack, server, slot)?);
     }
     if let Some(listener) = control {
         spawner.spawn(control::accept_task(spawner, listener, board)?);
     }
-    spawner.spawn(ready_task(stack, options)?);
+    spawner.spawn(ready_task(stack, server, options)?);
     Ok(())
 }
 
@@ -132,21 +137,27 @@ async fn net_task(mut runner: Runner<'static, TunTapDevice>) -> ! {
 
 /// One Modbus listener per socket.
 #[embassy_executor::task(pool_size = SOCKET_POOL)]
-async fn modbus_task(stack: Stack<'static>, shared: &'static Shared<'static>, slot: SlotId) -> ! {
-    server::listen(stack, shared, slot).await
+async fn modbus_task(stack: Stack<'static>, server: &'static ModbusServer, slot: SlotId) -> ! {
+    server::listen(stack, server, slot).await
+}
+
+/// Follows the TAP's link with the boards' network policy.
+#[embassy_executor::task]
+async fn link_task(stack: Stack<'static>, server: &'static ModbusServer, options: &'static Options) -> ! {
+    adapter::net::run(stack, &options.settings.network, server).await
 }
 
 #[embassy_executor::task]
 async fn refresh_task(board: &'static Board) -> ! {
     let (mut pins, mut robot) = board.sources();
-    server::refresh_loop(board.shared, &mut pins, &mut robot).await
+    device::refresh_loop(board.device, &mut pins, &mut robot).await
 }
 
 /// Prints the one line that says hal-sim is ready, once the address is up.
 #[embassy_executor::task]
-async fn ready_task(stack: Stack<'static>, options: &'static Options) {
+async fn ready_task(stack: Stack<'static>, server: &'static ModbusServer, options: &'static Options) {
     stack.wait_config_up().await;
-    let config = options.config;
+    let config = server.config();
     log::info!(
         "max {} connections, idle timeout {:?}, unit id {:?}, write policy {:?}, robot {:?}",
         config.max_connections,
@@ -158,7 +169,9 @@ async fn ready_task(stack: Stack<'static>, options: &'static Options) {
     if let Some(path) = &options.control {
         log::info!("control socket at {}", path.display());
     }
-    println!("hal-sim: modbus tcp listening on {}:{} (tap {})", options.address, config.port, options.tap);
+    let address = stack.config_v4().map(|v4| v4.address.address());
+    let address = address.map_or_else(|| "?".to_owned(), |address| address.to_string());
+    println!("hal-sim: modbus tcp listening on {address}:{} (tap {})", config.port, options.tap);
     let _ = std::io::stdout().flush();
 }
 

@@ -8,8 +8,8 @@
 
 use std::cell::{Cell, RefCell};
 
+use adapter::device::Device;
 use adapter::io::{ANALOG_CHANNELS, AnalogType, InputPins, OutputPins, Outputs, Robot, RobotStatus, Telemetry};
-use adapter::server::Shared;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use sim_robot::{Event, Refused, SimRobot};
@@ -75,29 +75,29 @@ pub fn unit(kind: AnalogType) -> &'static str {
 /// The board hal-sim simulates, shared by the refresh task and the control socket.
 #[derive(Debug)]
 pub struct Board {
-    pub shared: &'static Shared<'static>,
+    pub device: &'static Device<'static>,
     pub outputs: &'static OutputLatch,
     inputs: Inputs,
     robot: RefCell<SimRobot>,
 }
 
 impl Board {
-    pub fn new(shared: &'static Shared<'static>, outputs: &'static OutputLatch, robot: SimRobot) -> Self {
-        Self { shared, outputs, inputs: Inputs::default(), robot: RefCell::new(robot) }
+    pub fn new(device: &'static Device<'static>, outputs: &'static OutputLatch, robot: SimRobot) -> Self {
+        Self { device, outputs, inputs: Inputs::default(), robot: RefCell::new(robot) }
     }
 
     /// Digital input `pin` (0-based) on or off: an edge, in the image at once.
     pub fn set_digital_input(&self, pin: u8, on: bool) {
         let mask = with_bit(self.inputs.digital.get(), pin, on);
         self.inputs.digital.set(mask);
-        self.shared.set_digital_inputs(mask);
+        self.device.set_digital_inputs(mask);
     }
 
     /// Tool digital input `pin` (0-based) on or off.
     pub fn set_tool_input(&self, pin: u8, on: bool) {
         let mask = with_bit(u16::from(self.inputs.tool.get()), pin, on).to_le_bytes()[0];
         self.inputs.tool.set(mask);
-        self.shared.set_tool_inputs(mask);
+        self.device.set_tool_inputs(mask);
     }
 
     /// Analog input `channel` (0-based) reads `value`, in thousandths of the
@@ -108,7 +108,7 @@ impl Board {
             *slot = value;
         }
         self.inputs.analog.set(analog);
-        self.shared.set_analog_input(channel, value);
+        self.device.set_analog_input(channel, value);
     }
 
     /// The digital and tool input masks and the raw analog values.
@@ -119,7 +119,7 @@ impl Board {
     /// Applies a robot event and pushes the new status into the image at once.
     pub fn robot_event(&self, event: Event) -> Result<RobotStatus, Refused> {
         let status = self.robot.borrow_mut().event(event)?;
-        self.shared.set_robot_status(&status);
+        self.device.set_robot_status(&status);
         Ok(status)
     }
 

@@ -36,7 +36,7 @@ impl Ledger {
     /// A fresh map under hal-sim's default policy (every unit id, `seed` writes).
     pub fn new() -> Self {
         let mut model = Image::new();
-        adapter::VERSION.apply(&mut model);
+        model.set_version(&adapter::VERSION);
         Self { model, policy: Policy::default(), acknowledged: 0 }
     }
 

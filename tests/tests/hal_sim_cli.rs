@@ -22,7 +22,7 @@ fn bad_arguments_are_refused_with_a_reason() {
     for (args, reason) in [
         (&[][..], "`--tap NAME` is required"),
         (&["--tap"][..], "needs a value"),
-        (&["--tap", TAP, "--port", "0"][..], "`--port` must be a whole number from 1 to 65535"),
+        (&["--tap", TAP, "--port", "0"][..], "`--port` must be 1-65535"),
         (&["--tap", TAP, "--port", "502x"][..], "not `502x`"),
         (&["--tap", TAP, "--ip", "198.18.0.999/24"][..], "not an IPv4 address"),
         (&["--tap", TAP, "--max-connections", "100"][..], "MODBUS_MAX_CONNECTIONS"),

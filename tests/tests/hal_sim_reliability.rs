@@ -22,7 +22,7 @@ fn stats(sim: &HalSim) -> HashMap<String, u32> {
 
 #[test]
 fn the_watchdog_puts_outputs_in_their_safe_state_until_a_client_writes_again() {
-    let sim = HalSim::start(&["--robot", "idle", "--watchdog", "0.5", "--safe-do", "0x8000", "--safe-ao1", "4000"]);
+    let sim = HalSim::start(&["--robot", "idle", "--watchdog-ms", "500", "--safe-do", "0x8000", "--safe-ao1", "4000"]);
     sim.run(|| async {
         let mut ctx = sim.connect().await;
         ctx.write_single_register(1, 0x00ff).await.unwrap().unwrap();

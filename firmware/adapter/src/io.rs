@@ -2,11 +2,13 @@
 //!
 //! - [`OutputPins`]: drives outputs as soon as a master's write lands.
 //! - [`InputPins`]: samples inputs; boards also push input edges into the image
-//!   at once through [`crate::server::Shared::update`].
+//!   at once through [`crate::device::Device`].
 //! - [`Robot`]: the robot controller's status and telemetry.
+//!
+//! Traits and the values that cross them, nothing else: how they map to
+//! registers is the map's business ([`crate::map::points`]).
 
-use crate::map::Image;
-use crate::map::table::{self, reg};
+use crate::map::table;
 
 /// What an analog point measures or drives (its type register).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -64,34 +66,6 @@ pub struct Outputs {
     pub analog: [AnalogOutput; ANALOG_CHANNELS],
     /// The type the master selected for each analog input (the front end's mode).
     pub analog_input_types: [AnalogType; ANALOG_CHANNELS],
-}
-
-/// Analog outputs 1 and 2: (value register, type register).
-pub const ANALOG_OUTPUT_REGISTERS: [(u16, u16); ANALOG_CHANNELS] =
-    [(reg::ANALOG_OUTPUT_1, reg::ANALOG_OUTPUT_1_TYPE), (reg::ANALOG_OUTPUT_2, reg::ANALOG_OUTPUT_2_TYPE)];
-/// Analog inputs 1 and 2: (value register, type register).
-pub const ANALOG_INPUT_REGISTERS: [(u16, u16); ANALOG_CHANNELS] =
-    [(reg::ANALOG_INPUT_1, reg::ANALOG_INPUT_1_TYPE), (reg::ANALOG_INPUT_2, reg::ANALOG_INPUT_2_TYPE)];
-
-impl Outputs {
-    /// The outputs as the image holds them.
-    pub fn from_image(image: &Image) -> Self {
-        let analog = ANALOG_OUTPUT_REGISTERS.map(|(value, kind)| AnalogOutput {
-            value: image.register(value),
-            kind: AnalogType::from_register(image.register(kind)),
-        });
-        Self {
-            digital: image.register(reg::DIGITAL_OUTPUTS),
-            tool: image.register(reg::TOOL_OUTPUTS).to_le_bytes()[0],
-            analog,
-            analog_input_types: analog_input_types(image),
-        }
-    }
-}
-
-/// The analog input types the master selected.
-pub fn analog_input_types(image: &Image) -> [AnalogType; ANALOG_CHANNELS] {
-    ANALOG_INPUT_REGISTERS.map(|(_, kind)| AnalogType::from_register(image.register(kind)))
 }
 
 /// Drives the outputs. Called with the image locked, right after a write
@@ -175,11 +149,6 @@ impl RobotStatus {
             self.power_button as u16,
         ]
     }
-
-    /// Writes registers 259-264.
-    pub fn apply(&self, image: &mut Image) {
-        image.set_registers(reg::ROBOT_STATE, &self.registers());
-    }
 }
 
 /// Six values, one per joint or per Cartesian axis (X Y Z then A B C / RX RY RZ).
@@ -209,24 +178,8 @@ pub struct Telemetry {
     pub external_wrench: Six,
 }
 
-impl Telemetry {
-    /// Writes registers 270-435 (the gaps stay 0).
-    pub fn apply(&self, image: &mut Image) {
-        let signed = |values: &Six| values.map(|v| v as u16);
-        image.set_registers(reg::JOINT_POSITION, &signed(&self.joint_position));
-        image.set_registers(reg::JOINT_VELOCITY, &signed(&self.joint_velocity));
-        image.set_registers(reg::JOINT_CURRENT, &self.joint_current);
-        image.set_registers(reg::JOINT_TEMPERATURE, &self.joint_temperature);
-        image.set_registers(reg::JOINT_TORQUE, &signed(&self.joint_torque));
-        image.set_registers(reg::TASK_POSITION, &signed(&self.task_pose));
-        image.set_registers(reg::TASK_VELOCITY, &signed(&self.task_velocity));
-        image.set_registers(reg::TOOL_OFFSET_LENGTH, &signed(&self.tool_offset));
-        image.set_registers(reg::EXTERNAL_FORCE, &signed(&self.external_wrench));
-    }
-}
-
 /// The robot data source, sampled by the 100 ms refresh. Event-class changes
-/// (an e-stop, a button) are pushed at once through [`crate::server::Shared::update`].
+/// (an e-stop, a button) are pushed at once through [`crate::device::Device::update`].
 pub trait Robot {
     fn status(&mut self) -> RobotStatus;
     fn telemetry(&mut self) -> Telemetry;
@@ -253,11 +206,4 @@ pub struct Version {
     pub major: u16,
     pub minor: u16,
     pub patch: u16,
-}
-
-impl Version {
-    /// Writes registers 256-258.
-    pub fn apply(&self, image: &mut Image) {
-        image.set_registers(reg::VERSION_MAJOR, &[self.major, self.minor, self.patch]);
-    }
 }

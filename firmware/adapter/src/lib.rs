@@ -1,10 +1,12 @@
 //! Modbus TCP I/O adapter: the logic shared by the firmware images and hal-sim.
 //!
-//! - [`modbus`]: the wire codec (MBAP framing, request and response PDUs).
+//! - [`modbus`]: the wire codec (its own crate, re-exported).
 //! - [`map`]: the data map as one declarative table, and the process image.
-//! - [`server`]: request handling, sessions over any `embedded-io-async`
-//!   stream, connection slots with eviction, and the embassy-net listener.
-//! - [`io`]: the hardware seam a board implements (pins, robot data).
+//! - [`io`]: the hardware seam a board implements (pins, robot data): traits and their types.
+//! - [`device`]: the shared state: image, outputs, watchdog, counters, refresh.
+//! - [`server`]: the Modbus TCP server: request handling, sessions over any
+//!   `embedded-io-async` stream, connection slots, access, the embassy-net listener.
+//! - [`settings`]: the one settings model, and [`net`]: the boards' network policy.
 //!
 //! The library is `no_std` and allocation-free; every size is a named constant.
 #![cfg_attr(not(test), no_std)]
@@ -13,8 +15,11 @@
 #[macro_use]
 pub mod fmt;
 
+pub mod analog;
+pub mod device;
 pub mod io;
 pub mod map;
+pub mod net;
 pub mod server;
 pub mod settings;
 

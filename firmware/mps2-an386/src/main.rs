@@ -2,32 +2,45 @@
 //! embassy-net, the Modbus listeners, the 100 ms refresh with no robot, and
 //! digital outputs 1 and 2 on the FPGA user LEDs.
 //!
-//! Address: DHCP (slirp gives 10.0.2.15); with no answer within
-//! [`DHCP_TIMEOUT`], the static [`FALLBACK_ADDRESS`] (the TAP test bench).
+//! Address: the adapter's network policy with this board's factory
+//! settings ([`SETTINGS`]): DHCP (slirp gives 10.0.2.15); with no answer
+//! within 5 s, 198.18.0.2/24 (the TAP test bench, RFC 2544's range).
 #![no_std]
 #![no_main]
 
+use adapter::device::{self, Device};
+use adapter::server::{self, SOCKET_POOL, Server, SlotId};
+use adapter::settings::{Cidr, NetMode, NetworkSettings, Settings};
 use defmt_semihosting as _;
 use embassy_executor::Spawner;
-use embassy_net::{Config, ConfigV4, Ipv4Address, Ipv4Cidr, Runner, Stack, StackResources, StaticConfigV4};
-use embassy_time::{Duration, with_timeout};
+use embassy_net::{Runner, Stack, StackResources};
 mod board;
 mod runtime;
 mod systick;
 
-use adapter::fmt::Ip;
 use adapter::io::NoRobot;
-use adapter::server::{self, SOCKET_POOL, Shared, SlotId};
 use board::{Leds, Mmio, RamInputs};
 use lan9118::Lan9118;
 use static_cell::StaticCell;
 
 /// Sockets the stack holds: the Modbus listeners, and DHCP's.
 const SOCKETS: usize = SOCKET_POOL + 1;
-/// How long to wait for a DHCP server before using [`FALLBACK_ADDRESS`].
-const DHCP_TIMEOUT: Duration = Duration::from_secs(3);
-/// The static address without DHCP: the test bench range (RFC 2544).
-const FALLBACK_ADDRESS: Ipv4Cidr = Ipv4Cidr::new(Ipv4Address::new(198, 18, 0, 2), 24);
+
+/// The factory settings: DHCP with the test bench's address as the
+/// fallback after 5 s, then the build's variables (a bad value stops the build).
+pub const SETTINGS: Settings = Settings {
+    network: NetworkSettings {
+        mode: NetMode::Dhcp,
+        address: Some(Cidr { address: [198, 18, 0, 2], prefix_len: 24 }),
+        gateway: None,
+        dhcp_timeout_s: 5,
+    },
+    ..Settings::DEFAULT
+}
+.with_build_env();
+
+/// The Modbus server over the device.
+type ModbusServer = Server<'static, Device<'static>>;
 
 static LEDS: Leds = Leds;
 
@@ -47,15 +60,17 @@ fn main() -> ! {
     // sequence numbers and ports between boards, so the MAC will do.
     let [a, b, c, d, e, f] = mac;
     let seed = u64::from_le_bytes([a, b, c, d, e, f, 0x4d, 0x42]);
-    let config = Config::dhcpv4(Default::default());
+    let config = adapter::net::initial_config(&SETTINGS.network);
     let (stack, runner) = embassy_net::new(ethernet, config, RESOURCES.init(StackResources::new()), seed);
 
-    static SHARED: StaticCell<Shared<'static>> = StaticCell::new();
-    let shared: &'static Shared<'static> = SHARED.init(Shared::new(adapter::settings::CONFIG, adapter::VERSION, &LEDS));
-    shared.drive_outputs();
+    static DEVICE: StaticCell<Device<'static>> = StaticCell::new();
+    let device: &'static Device<'static> = DEVICE.init(Device::new(SETTINGS.watchdog(), adapter::VERSION, &LEDS));
+    device.drive_outputs();
+    static SERVER: StaticCell<ModbusServer> = StaticCell::new();
+    let server: &'static ModbusServer = SERVER.init(Server::new(SETTINGS.server_config(), device));
 
     runtime::run(|spawner| {
-        if let Err(e) = spawn_all(spawner, stack, runner, shared) {
+        if let Err(e) = spawn_all(spawner, stack, runner, device, server) {
             fail("spawn", e)
         }
     })
@@ -65,13 +80,14 @@ fn spawn_all(
     spawner: Spawner,
     stack: Stack<'static>,
     runner: Runner<'static, Lan9118<Mmio>>,
-    shared: &'static Shared<'static>,
+    device: &'static Device<'static>,
+    server: &'static ModbusServer,
 ) -> Result<(), embassy_executor::SpawnError> {
     spawner.spawn(net_task(runner)?);
-    spawner.spawn(address_task(stack)?);
-    spawner.spawn(refresh_task(shared)?);
+    spawner.spawn(link_task(stack, server)?);
+    spawner.spawn(refresh_task(device)?);
     for slot in 0..SOCKET_POOL {
-        spawner.spawn(modbus_task(stack, shared, slot)?);
+        spawner.spawn(modbus_task(stack, server, slot)?);
     }
     Ok(())
 }
@@ -86,31 +102,19 @@ async fn net_task(mut runner: Runner<'static, Lan9118<Mmio>>) -> ! {
     runner.run().await
 }
 
+/// Follows the link with the adapter's network policy.
 #[embassy_executor::task]
-async fn refresh_task(shared: &'static Shared<'static>) -> ! {
-    server::refresh_loop(shared, &mut RamInputs::default(), &mut NoRobot).await
+async fn link_task(stack: Stack<'static>, server: &'static ModbusServer) -> ! {
+    adapter::net::run(stack, &SETTINGS.network, server).await
 }
 
-/// DHCP, or the fallback address; then logs where the server listens.
 #[embassy_executor::task]
-async fn address_task(stack: Stack<'static>) {
-    if with_timeout(DHCP_TIMEOUT, stack.wait_config_up()).await.is_err() {
-        let address = FALLBACK_ADDRESS.address().octets();
-        defmt::info!("no DHCP answer: using {}/{}", Ip(address), FALLBACK_ADDRESS.prefix_len());
-        stack.set_config_v4(ConfigV4::Static(StaticConfigV4 {
-            address: FALLBACK_ADDRESS,
-            gateway: None,
-            dns_servers: Default::default(),
-        }));
-    }
-    stack.wait_config_up().await;
-    if let Some(config) = stack.config_v4() {
-        defmt::info!("Modbus TCP server at {}:{=u16}", Ip(config.address.address().octets()), server::MODBUS_PORT);
-    }
+async fn refresh_task(device: &'static Device<'static>) -> ! {
+    device::refresh_loop(device, &mut RamInputs::default(), &mut NoRobot).await
 }
 
 /// One Modbus listener per socket; its buffers live in the task's static storage.
 #[embassy_executor::task(pool_size = SOCKET_POOL)]
-async fn modbus_task(stack: Stack<'static>, shared: &'static Shared<'static>, slot: SlotId) -> ! {
-    server::listen(stack, shared, slot).await
+async fn modbus_task(stack: Stack<'static>, server: &'static ModbusServer, slot: SlotId) -> ! {
+    server::listen(stack, server, slot).await
 }

@@ -28,8 +28,8 @@ use embassy_stm32::{bind_interrupts, eth, rng};
 use static_cell::StaticCell;
 
 use crate::pins::{self, CaptureTimer, Edges, INPUT_PULL, output};
-use crate::{leds, net, safety, settings};
-use adapter::server::Shared;
+use crate::{ModbusServer, leds, net, safety};
+use adapter::device::Device;
 
 bind_interrupts!(
     /// Every interrupt the board uses, bound to its handler.
@@ -83,7 +83,7 @@ pub struct Board {
     pub mac: [u8; 6],
     /// A seed for the network stack (TCP sequence numbers, DHCP ids), from the RNG.
     pub seed: u64,
-    /// The outputs, for `Shared::new`.
+    /// The outputs, for `Device::new`.
     pub outputs: &'static pins::Outputs,
     /// The inputs for the 100 ms refresh (debounced digital levels, the ADC).
     pub inputs: pins::Inputs,
@@ -193,7 +193,7 @@ pub fn init() -> Board {
     let inputs = pins::Inputs::new(edges, Adc::new(p.ADC1), [p.PA3.degrade_adc(), p.PC0.degrade_adc()]);
 
     let seed = Rng::new(p.RNG, Irqs).next_u64();
-    let mac = settings::mac_from_uid(&embassy_stm32::uid::uid());
+    let mac = adapter::net::mac_from_uid(&embassy_stm32::uid::uid());
     defmt::info!("MAC {:02x}", mac);
     // RMII: REF_CLK PA1, CRS_DV PA7, RXD0 PC4, RXD1 PC5, TXD0 PG13, TXD1 PB13, TX_EN PG11; MDIO PA2, MDC PC1.
     let ethernet = Ethernet::new(
@@ -223,13 +223,14 @@ pub fn spawn(
     tasks: Tasks,
     runner: net::Runner,
     stack: Stack<'static>,
-    shared: &'static Shared<'static>,
+    device: &'static Device<'static>,
+    server: &'static ModbusServer,
 ) -> Result<(), SpawnError> {
     let Tasks { watchdog, edges, leds } = tasks;
     spawner.spawn(safety::watchdog_task(watchdog)?);
     spawner.spawn(net::runner_task(runner)?);
-    spawner.spawn(net::link_task(stack, shared)?);
-    spawner.spawn(pins::edge_task(edges, shared)?);
-    spawner.spawn(leds::led_task(leds, stack, shared)?);
+    spawner.spawn(net::link_task(stack, server)?);
+    spawner.spawn(pins::edge_task(edges, device)?);
+    spawner.spawn(leds::led_task(leds, stack, server)?);
     Ok(())
 }

@@ -10,7 +10,7 @@ use embassy_net::Stack;
 use embassy_stm32::gpio::{Level, Output};
 use embassy_time::{Duration, Instant, Ticker};
 
-use adapter::server::Shared;
+use crate::ModbusServer;
 
 /// How often the LEDs are updated, and how long a traffic flash lasts.
 pub const TRAFFIC_FLASH: Duration = Duration::from_millis(50);
@@ -36,7 +36,7 @@ impl core::fmt::Debug for Leds {
 
 /// Drives the LEDs from the link state and the session slots.
 #[embassy_executor::task]
-pub async fn led_task(mut leds: Leds, stack: Stack<'static>, shared: &'static Shared<'static>) -> ! {
+pub async fn led_task(mut leds: Leds, stack: Stack<'static>, shared: &'static ModbusServer) -> ! {
     let mut ticker = Ticker::every(TRAFFIC_FLASH);
     let fault_until = Instant::now() + if leds.watchdog_reset { WATCHDOG_SHOWN } else { Duration::from_ticks(0) };
     let mut seen = shared.slots().last_activity();

@@ -1,6 +1,8 @@
 //! The NUCLEO-F429ZI image: Modbus TCP on port 502 over the board's Ethernet.
 //!
-//! Build and flash: `cargo nucleo` (see `docs/nucleo-f429zi.md`).
+//! Build and flash: `cargo nucleo` (see `docs/nucleo-f429zi.md`). The
+//! factory settings are the defaults of `adapter::settings`, changed by the
+//! build-time variables (`MODBUS_*`, `NET_*`, ...; docs/reliability.md).
 #![no_std]
 #![no_main]
 
@@ -9,15 +11,23 @@ mod leds;
 mod net;
 mod pins;
 mod safety;
-mod settings;
 
-use adapter::server::{self, SOCKET_POOL, Shared, SlotId};
+use adapter::device::{self, Device};
+use adapter::server::{self, SOCKET_POOL, Server, SlotId};
+use adapter::settings::Settings;
 use defmt::unwrap;
 use defmt_rtt as _;
 use embassy_executor::Spawner;
 use embassy_net::Stack;
 use panic_probe as _;
 use static_cell::StaticCell;
+
+/// The factory settings: the defaults with the build's variables applied
+/// (a bad value stops the build).
+pub const SETTINGS: Settings = Settings::DEFAULT.with_build_env();
+
+/// The Modbus server over the device.
+pub type ModbusServer = Server<'static, Device<'static>>;
 
 #[cfg(not(feature = "sim-robot"))]
 type BoardRobot = adapter::io::NoRobot;
@@ -36,31 +46,35 @@ const fn robot() -> BoardRobot {
 async fn main(spawner: Spawner) {
     let board = board::init();
 
-    static SHARED: StaticCell<Shared<'static>> = StaticCell::new();
-    let shared = &*SHARED.init(Shared::new(adapter::settings::CONFIG, adapter::VERSION, board.outputs));
-    shared.drive_outputs();
+    static DEVICE: StaticCell<Device<'static>> = StaticCell::new();
+    let device = &*DEVICE.init(Device::new(SETTINGS.watchdog(), adapter::VERSION, board.outputs));
+    device.drive_outputs();
+    static SERVER: StaticCell<ModbusServer> = StaticCell::new();
+    let server = &*SERVER.init(Server::new(SETTINGS.server_config(), device));
 
-    let (stack, runner) = embassy_net::new(board.ethernet, net::config(), net::resources(), board.seed);
+    let config = adapter::net::initial_config(&SETTINGS.network);
+    let (stack, runner) = embassy_net::new(board.ethernet, config, net::resources(), board.seed);
 
     // Every task pool is sized for exactly these spawns; a failure is a build
     // mistake, and its panic ends in the fault handler (outputs off, reset).
-    unwrap!(board::spawn(spawner, board.tasks, runner, stack, shared));
+    unwrap!(board::spawn(spawner, board.tasks, runner, stack, device, server));
     for slot in 0..SOCKET_POOL {
-        spawner.spawn(unwrap!(modbus_task(stack, shared, slot)));
+        spawner.spawn(unwrap!(modbus_task(stack, server, slot)));
     }
-    spawner.spawn(unwrap!(refresh_task(shared, board.inputs)));
-    defmt::info!("serving Modbus TCP on port {}, {} sessions", shared.config().port, shared.config().max_connections);
+    spawner.spawn(unwrap!(refresh_task(device, board.inputs)));
+    let config = server.config();
+    defmt::info!("serving Modbus TCP on port {}, {} sessions", config.port, config.max_connections);
 }
 
 /// The 100 ms refresh of the inputs, the analog readings and the robot data.
 #[embassy_executor::task]
-async fn refresh_task(shared: &'static Shared<'static>, mut inputs: pins::Inputs) -> ! {
+async fn refresh_task(device: &'static Device<'static>, mut inputs: pins::Inputs) -> ! {
     let mut robot = robot();
-    server::refresh_loop(shared, &mut inputs, &mut robot).await
+    device::refresh_loop(device, &mut inputs, &mut robot).await
 }
 
 /// One Modbus listener per socket; its buffers live in the task's static storage.
 #[embassy_executor::task(pool_size = SOCKET_POOL)]
-async fn modbus_task(stack: Stack<'static>, shared: &'static Shared<'static>, slot: SlotId) -> ! {
-    server::listen(stack, shared, slot).await
+async fn modbus_task(stack: Stack<'static>, server: &'static ModbusServer, slot: SlotId) -> ! {
+    server::listen(stack, server, slot).await
 }

@@ -22,7 +22,7 @@
 //!
 //! A digital point is on when its pin is high (3.3 V). Inputs have a pull-down,
 //! so an open input reads off. Analog values use the map's encoding (mV or µA)
-//! scaled as [`super::settings`] describes; the mode pins tell the external
+//! scaled by [`FRONT_END`]; the mode pins tell the external
 //! front end which type the master selected (high = voltage, low = current).
 
 use core::cell::RefCell;
@@ -48,9 +48,15 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Timer as Delay, with_timeout};
 
-use crate::{safety, settings};
+use crate::safety;
+use adapter::analog::FrontEnd;
 use adapter::io::{self, ANALOG_CHANNELS, AnalogType};
-use adapter::server::Shared;
+
+/// The analog front end: ADC and DAC at VDDA = VREF+ = 3.3 V, 12 bits; the
+/// external front end maps 3.0 V at the pin to the top of each range (10 V
+/// or 20 mA), leaving headroom below the reference.
+pub const FRONT_END: FrontEnd = FrontEnd { vref_mv: 3300, full_scale_mv: 3000, code_max: 4095 };
+use adapter::device::Device;
 
 /// ControlBox digital inputs and outputs.
 pub const DIGITAL_POINTS: usize = 16;
@@ -154,7 +160,7 @@ impl io::OutputPins for Outputs {
                     dac.set(Value::Bit12Right(0));
                     mode.set_level(voltage);
                 }
-                dac.set(Value::Bit12Right(settings::value_to_dac(output.value, output.kind)));
+                dac.set(Value::Bit12Right(FRONT_END.to_code(output.value, output.kind)));
             }
         });
     }
@@ -300,7 +306,7 @@ impl Edges {
     }
 
     /// Samples the pins and pushes what changed since the last push.
-    fn update(&self, shared: &Shared<'_>) {
+    fn update(&self, shared: &Device<'_>) {
         let now = self.sample();
         let before = self.debounced.swap(now, Ordering::Relaxed);
         let (digital, tool) = split(now);
@@ -322,7 +328,7 @@ fn split(levels: u32) -> (u16, u8) {
 
 /// Pushes input edges into the image as they happen (see the module docs).
 #[embassy_executor::task]
-pub async fn edge_task(edges: &'static Edges, shared: &'static Shared<'static>) -> ! {
+pub async fn edge_task(edges: &'static Edges, shared: &'static Device<'static>) -> ! {
     loop {
         EDGE.reset();
         edges.rearm();
@@ -372,6 +378,6 @@ impl io::InputPins for Inputs {
         let Some(pin) = self.channels.get_mut(channel) else { return 0 };
         let sum: u32 = (0..ADC_SAMPLES).map(|_| u32::from(self.adc.blocking_read(pin, ADC_SAMPLE_TIME))).sum();
         let code = u16::try_from(sum / ADC_SAMPLES).unwrap_or(u16::MAX);
-        settings::adc_to_value(code, kind)
+        FRONT_END.to_value(code, kind)
     }
 }

@@ -643,7 +643,7 @@ mod tests {
 
     fn image_of(status: &RobotStatus) -> Image {
         let mut image = Image::new();
-        status.apply(&mut image);
+        image.set_robot_status(status);
         image
     }
 

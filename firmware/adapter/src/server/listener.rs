@@ -7,7 +7,7 @@ use embassy_net::tcp::TcpSocket;
 use embassy_net::{IpAddress, IpEndpoint, Stack};
 use embassy_time::{Duration, Instant, with_timeout};
 
-use super::{Shared, SlotId, Stats, serve};
+use super::{Server, Service, SlotId, Stats, serve};
 use crate::fmt::Ip;
 
 /// Receive buffer of each TCP socket: room for several pipelined requests.
@@ -29,16 +29,17 @@ pub const CLOSE_TIMEOUT: Duration = Duration::from_millis(250);
 ///
 /// A client outside the connect allow-list is reset at once; one outside
 /// the write allow-list is served read-only.
-pub async fn listen(stack: Stack<'_>, shared: &Shared<'_>, slot: SlotId) -> ! {
+pub async fn listen<S: Service>(stack: Stack<'_>, server: &Server<'_, S>, slot: SlotId) -> ! {
     let mut rx = [0u8; SOCKET_RX_LEN];
     let mut tx = [0u8; SOCKET_TX_LEN];
-    let config = shared.config();
+    // The port is fixed at start-up; the rest of the configuration is read per client.
+    let port = server.with_config(|config| config.port);
     loop {
         let mut socket = TcpSocket::new(stack, &mut rx, &mut tx);
         socket.set_nagle_enabled(false);
         socket.set_keep_alive(Some(KEEP_ALIVE));
         socket.set_timeout(Some(TCP_TIMEOUT));
-        if let Err(e) = socket.accept(config.port).await {
+        if let Err(e) = socket.accept(port).await {
             warn!("slot {}: accept failed: {:?}", slot, e);
             continue;
         }
@@ -49,24 +50,29 @@ pub async fn listen(stack: Stack<'_>, shared: &Shared<'_>, slot: SlotId) -> ! {
             continue;
         }
         let peer = Peer::of(endpoint);
-        if !peer.address.is_some_and(|address| config.access.may_connect(address)) {
-            Stats::count(&shared.stats().refused_connections);
+        let (may_connect, may_write, max_connections) = server.with_config(|config| {
+            let access = &config.access;
+            let allowed = |list: fn(&super::Access, [u8; 4]) -> bool| peer.address.is_some_and(|a| list(access, a));
+            (allowed(super::Access::may_connect), allowed(super::Access::may_write), config.max_connections)
+        });
+        if !may_connect {
+            Stats::count(&server.stats().refused_connections);
             info!("slot {}: refused {} (not in the connect allow-list)", slot, peer);
             socket.abort();
             let _ = with_timeout(CLOSE_TIMEOUT, socket.flush()).await;
             continue;
         }
-        let read_only = !peer.address.is_some_and(|address| config.access.may_write(address));
+        let read_only = !may_write;
         info!("slot {}: connection from {}{}", slot, peer, if read_only { " (read-only)" } else { "" });
-        if let Some(victim) = shared.slots().open(slot, config.max_connections, Instant::now(), read_only) {
-            Stats::count(&shared.stats().evictions);
+        if let Some(victim) = server.slots().open(slot, max_connections, Instant::now(), read_only) {
+            Stats::count(&server.stats().evictions);
             info!("slot {}: all sessions busy, closing the idlest (slot {})", slot, victim);
         }
-        match serve(&mut socket, shared, slot).await {
+        match serve(&mut socket, server, slot).await {
             Ok(()) => info!("slot {}: {} closed the connection", slot, peer),
             Err(e) => info!("slot {}: closing {}: {}", slot, peer, e),
         }
-        shared.slots().close(slot);
+        server.slots().close(slot);
         socket.close();
         let _ = with_timeout(CLOSE_TIMEOUT, socket.flush()).await;
         socket.abort();

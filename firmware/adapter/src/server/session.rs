@@ -8,7 +8,7 @@ use embassy_futures::select::{Either, select};
 use embassy_time::{Instant, with_deadline};
 use embedded_io_async::{Read, Write};
 
-use super::{Outcome, Policy, Shared, SlotId, Stats};
+use super::{Outcome, Policy, Server, Service, SlotId, Stats};
 use crate::modbus::be_u16;
 use crate::modbus::mbap::{self, HEADER_LEN, MAX_ADU_LEN};
 
@@ -59,10 +59,14 @@ impl<E: fmt::Debug> core::error::Error for Error<E> {}
 /// for its remaining bytes, at most `frame_timeout`.
 ///
 /// The client's rights come from its slot ([`super::Slots::open`]); bad
-/// lengths and timeouts are counted in [`Shared::stats`].
-pub async fn serve<S: Read + Write>(stream: &mut S, shared: &Shared<'_>, slot: SlotId) -> Result<(), Error<S::Error>> {
-    let result = run(stream, shared, slot).await;
-    let stats = shared.stats();
+/// lengths and timeouts are counted in the service's [`Stats`].
+pub async fn serve<T: Read + Write, S: Service>(
+    stream: &mut T,
+    server: &Server<'_, S>,
+    slot: SlotId,
+) -> Result<(), Error<T::Error>> {
+    let result = run(stream, server, slot).await;
+    let stats = server.stats();
     match result {
         Err(Error::BadLength(_)) => Stats::count(&stats.bad_length),
         Err(Error::IdleTimeout | Error::FrameTimeout) => Stats::count(&stats.timeouts),
@@ -71,10 +75,12 @@ pub async fn serve<S: Read + Write>(stream: &mut S, shared: &Shared<'_>, slot: S
     result
 }
 
-async fn run<S: Read + Write>(stream: &mut S, shared: &Shared<'_>, slot: SlotId) -> Result<(), Error<S::Error>> {
-    let config = shared.config();
-    let read_only = config.policy.read_only || shared.slots().read_only(slot);
-    let policy = Policy { read_only, ..config.policy };
+async fn run<T: Read + Write, S: Service>(
+    stream: &mut T,
+    server: &Server<'_, S>,
+    slot: SlotId,
+) -> Result<(), Error<T::Error>> {
+    let read_only = server.slots().read_only(slot);
     let mut rx = [0u8; SESSION_BUFFER_LEN];
     let mut reply = [0u8; MAX_ADU_LEN];
     let mut filled = 0;
@@ -92,7 +98,11 @@ async fn run<S: Read + Write>(stream: &mut S, shared: &Shared<'_>, slot: SlotId)
                 Err(mbap::Error::Truncated) => break,
             };
             let frame = pending.get(..len).unwrap_or(&[]);
-            match shared.respond_as(frame, &mut reply, &policy) {
+            // The configuration in force for each request: a change applies at once.
+            let (policy, idle_timeout) = server.with_config(|config| {
+                (Policy { read_only: config.policy.read_only || read_only, ..config.policy }, config.idle_timeout)
+            });
+            match server.service().respond(frame, &mut reply, &policy) {
                 Outcome::Reply { len, function, exception, .. } => {
                     // The address is read only when a line is logged (the
                     // log macros evaluate their arguments only then).
@@ -103,14 +113,14 @@ async fn run<S: Read + Write>(stream: &mut S, shared: &Shared<'_>, slot: SlotId)
                         debug!("slot {}: function {:#x} wrote at {}", slot, u8::from(function), address());
                     }
                     let out = reply.get(..len).unwrap_or(&[]);
-                    let deadline = config.idle_timeout.map(|t| Instant::now() + t);
-                    guarded(write_all(stream, out), deadline, shared, slot).await??;
+                    let deadline = idle_timeout.map(|t| Instant::now() + t);
+                    guarded(write_all(stream, out), deadline, server, slot).await??;
                 }
                 Outcome::Discard { protocol_id } => warn!("slot {}: discarded protocol id {}", slot, protocol_id),
             }
             consumed += len;
             last_request = Instant::now();
-            shared.slots().touch(slot, last_request);
+            server.slots().touch(slot, last_request);
         }
         if consumed > 0 {
             rx.copy_within(consumed..filled, 0);
@@ -121,12 +131,12 @@ async fn run<S: Read + Write>(stream: &mut S, shared: &Shared<'_>, slot: SlotId)
             frame_started = Some(Instant::now());
         }
 
-        let deadline = match frame_started {
+        let deadline = server.with_config(|config| match frame_started {
             Some(started) => Some(started + config.frame_timeout),
             None => config.idle_timeout.map(|t| last_request + t),
-        };
+        });
         let free = rx.get_mut(filled..).unwrap_or(&mut []);
-        match guarded(stream.read(free), deadline, shared, slot).await {
+        match guarded(stream.read(free), deadline, server, slot).await {
             Ok(Ok(0)) => return Ok(()),
             Ok(Ok(n)) => filled += n,
             Ok(Err(e)) => return Err(Error::Transport(e)),
@@ -137,10 +147,10 @@ async fn run<S: Read + Write>(stream: &mut S, shared: &Shared<'_>, slot: SlotId)
 }
 
 /// Runs `io` until `deadline` or until the slot is evicted.
-async fn guarded<T, E, F: Future<Output = T>>(
+async fn guarded<T, E, F: Future<Output = T>, S: Service>(
     io: F,
     deadline: Option<Instant>,
-    shared: &Shared<'_>,
+    server: &Server<'_, S>,
     slot: SlotId,
 ) -> Result<T, Error<E>> {
     let timed = async {
@@ -149,7 +159,7 @@ async fn guarded<T, E, F: Future<Output = T>>(
             None => Ok(io.await),
         }
     };
-    match select(timed, shared.slots().evicted(slot)).await {
+    match select(timed, server.slots().evicted(slot)).await {
         Either::First(result) => result,
         Either::Second(()) => Err(Error::Evicted),
     }

@@ -171,3 +171,13 @@ impl crate::io::OutputPins for RecordingPins {
         self.calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     }
 }
+
+/// A server over a fresh device with recording pins (both leaked: tests only).
+pub fn server_with(
+    config: super::Config,
+    watchdog: super::Watchdog,
+) -> (&'static super::Server<'static, crate::device::Device<'static>>, &'static RecordingPins) {
+    let pins: &'static RecordingPins = Box::leak(Box::default());
+    let device = Box::leak(Box::new(crate::device::Device::new(watchdog, crate::VERSION, pins)));
+    (Box::leak(Box::new(super::Server::new(config, device))), pins)
+}

@@ -1,44 +1,17 @@
-//! The state every session and task shares: counters, the communication
-//! watchdog, read-only clients, the refresh and the event setters.
+//! The server over a device: read-only clients, counted session errors.
 
 use core::pin::pin;
 
 use embassy_time::Duration;
 
-use super::testing::{Clock, RecordingPins, Wire, adu, frames, poll_once};
+use super::testing::{Clock, RecordingPins, Wire, adu, frames, poll_once, server_with};
 use super::*;
-use crate::io::{AnalogType, NoRobot, RobotState, RobotStatus};
-use crate::map::WritePolicy;
-
-fn shared_with(config: Config) -> (Shared<'static>, &'static RecordingPins) {
-    let pins: &'static RecordingPins = Box::leak(Box::default());
-    (Shared::new(config, crate::VERSION, pins), pins)
-}
-
-fn ask(shared: &Shared<'_>, pdu: &[u8]) -> Vec<u8> {
-    let mut reply = [0u8; MAX_ADU_LEN];
-    match shared.respond(&adu(1, 1, pdu), &mut reply) {
-        Outcome::Reply { len, .. } => reply[7..len].to_vec(),
-        Outcome::Discard { .. } => Vec::new(),
-    }
-}
 
 const WRITE_COIL_16_ON: [u8; 5] = [0x05, 0x00, 0x10, 0xff, 0x00];
 const READ_128: [u8; 5] = [0x03, 0x00, 0x80, 0x00, 0x01];
 
-#[test]
-fn counters_follow_what_the_server_sees() {
-    let _clock = Clock::take();
-    let (shared, _) = shared_with(Config::DEFAULT);
-    ask(&shared, &READ_128);
-    ask(&shared, &[0x2b, 0x0e, 0x01, 0x00]); // unknown here: 01
-    ask(&shared, &[0x03, 0x01, 0xb4, 0x00, 0x01]); // register 436: 02
-    ask(&shared, &[0x05, 0x00, 0x10, 0x12, 0x34]); // bad coil value: 03
-    let mut foreign = adu(1, 1, &READ_128);
-    foreign[3] = 1;
-    assert_eq!(shared.respond(&foreign, &mut [0; MAX_ADU_LEN]), Outcome::Discard { protocol_id: 1 });
-    let c = shared.stats().snapshot();
-    assert_eq!((c.requests, c.bad_function, c.bad_address, c.bad_value, c.bad_protocol), (4, 1, 1, 1, 1));
+fn shared_with(config: Config) -> (&'static Server<'static, crate::device::Device<'static>>, &'static RecordingPins) {
+    server_with(config, Watchdog::OFF)
 }
 
 #[test]
@@ -47,7 +20,7 @@ fn a_read_only_client_may_read_and_its_writes_get_exception_01() {
     let (shared, pins) = shared_with(Config::DEFAULT);
     shared.slots().open(0, 8, embassy_time::Instant::now(), true);
     let (wire, mut end) = Wire::new();
-    let mut session = pin!(serve(&mut end, &shared, 0));
+    let mut session = pin!(serve(&mut end, shared, 0));
     let writes: [&[u8]; 4] = [
         &WRITE_COIL_16_ON,
         &[0x06, 0x00, 0x80, 0x00, 0x01],
@@ -64,7 +37,7 @@ fn a_read_only_client_may_read_and_its_writes_get_exception_01() {
         assert_eq!(reply[7..], [pdu[0] | 0x80, 0x01]);
     }
     assert_eq!(replies[4][7..], [0x03, 0x02, 0x00, 0x00], "reads are served");
-    assert_eq!(shared.read(|image| image.register(1)), 0);
+    assert_eq!(shared.service().read(|image| image.register(1)), 0);
     assert_eq!(pins.calls.load(std::sync::atomic::Ordering::Relaxed), 0, "no output was driven");
     assert_eq!(shared.stats().snapshot().refused_writes, 4);
     assert_eq!(shared.stats().snapshot().bad_function, 0);
@@ -77,7 +50,7 @@ fn a_server_wide_read_only_policy_holds_whatever_the_slot_says() {
     let (shared, _) = shared_with(config);
     shared.slots().open(0, 8, embassy_time::Instant::now(), false);
     let (wire, mut end) = Wire::new();
-    let mut session = pin!(serve(&mut end, &shared, 0));
+    let mut session = pin!(serve(&mut end, shared, 0));
     wire.send(&adu(1, 1, &WRITE_COIL_16_ON));
     assert!(poll_once(session.as_mut()).is_pending());
     assert_eq!(frames(&wire.take_replies())[0][7..], [0x85, 0x01]);
@@ -89,9 +62,9 @@ fn sessions_count_bad_lengths_and_timeouts() {
     let (shared, _) = shared_with(Config { idle_timeout: Some(Duration::from_secs(5)), ..Config::DEFAULT });
     let (wire, mut end) = Wire::new();
     wire.send(&[0, 1, 0, 0, 0, 0]);
-    assert!(poll_once(pin!(serve(&mut end, &shared, 0))).is_ready());
+    assert!(poll_once(pin!(serve(&mut end, shared, 0))).is_ready());
     let (_wire, mut end) = Wire::new();
-    let mut idle = pin!(serve(&mut end, &shared, 1));
+    let mut idle = pin!(serve(&mut end, shared, 1));
     assert!(poll_once(idle.as_mut()).is_pending());
     clock.advance(Duration::from_secs(5));
     assert!(poll_once(idle.as_mut()).is_ready());
@@ -101,106 +74,17 @@ fn sessions_count_bad_lengths_and_timeouts() {
 }
 
 #[test]
-fn the_watchdog_puts_outputs_in_their_safe_state_until_written_again() {
-    let clock = Clock::take();
-    let safe_state = SafeState { digital: 0b1000_0000_0000_0000, tool: 0, analog: [4_000, 0] };
-    let watchdog = Watchdog { timeout: Some(Duration::from_millis(500)), safe_state };
-    let (shared, pins) = shared_with(Config { watchdog, ..Config::DEFAULT });
-    let outputs = || pins.last.lock().unwrap().unwrap_or_default();
-
-    // Outputs on, analog output 2 at 15 mA.
-    assert_eq!(ask(&shared, &[0x06, 0x00, 0x01, 0x00, 0xff]), [0x06, 0x00, 0x01, 0x00, 0xff]);
-    assert_eq!(ask(&shared, &[0x06, 0x00, 0x12, 0x3a, 0x98])[0], 0x06);
-    clock.advance(Duration::from_millis(499));
-    assert!(!shared.check_watchdog());
-    ask(&shared, &READ_128); // a valid request restarts the timer
-    clock.advance(Duration::from_millis(499));
-    assert!(!shared.check_watchdog());
-    ask(&shared, &[0x03, 0x01, 0xb4, 0x00, 0x01]); // an exception is not a valid request
-    clock.advance(Duration::from_millis(1));
-    assert!(shared.check_watchdog());
-    assert_eq!(outputs().digital, 0b1000_0000_0000_0000);
-    assert_eq!([outputs().analog[0].value, outputs().analog[1].value], [4_000, 0]);
-    assert_eq!(shared.read(|image| image.register(1)), 0b1000_0000_0000_0000, "both views show the safe state");
-    assert!(shared.read(|image| image.coil(31)) && !shared.read(|image| image.coil(16)));
-    assert_eq!(shared.stats().snapshot().watchdog_trips, 1);
-
-    // It trips once per silence; reading re-arms it but leaves the outputs safe.
-    clock.advance(Duration::from_secs(10));
-    assert!(!shared.check_watchdog());
-    ask(&shared, &READ_128);
-    assert_eq!(outputs().digital, 0b1000_0000_0000_0000);
-    // A write restores them; silence trips it again.
-    ask(&shared, &WRITE_COIL_16_ON);
-    assert_eq!(outputs().digital, 0b1000_0000_0000_0001);
-    clock.advance(Duration::from_millis(500));
-    assert!(shared.check_watchdog());
-    assert_eq!(shared.stats().snapshot().watchdog_trips, 2);
-}
-
-#[test]
-fn without_a_timeout_the_watchdog_never_trips() {
-    let clock = Clock::take();
-    let (shared, _) = shared_with(Config::DEFAULT);
-    ask(&shared, &WRITE_COIL_16_ON);
-    clock.advance(Duration::from_secs(24 * 3600));
-    assert!(!shared.check_watchdog());
-    assert!(shared.read(|image| image.coil(16)));
-}
-
-/// Inputs that read fixed values.
-struct FixedInputs;
-
-impl InputPins for FixedInputs {
-    fn digital(&mut self) -> u16 {
-        0x00f0
-    }
-    fn tool(&mut self) -> u8 {
-        0b10_0001
-    }
-    fn analog(&mut self, channel: usize, kind: AnalogType) -> u16 {
-        // 25 000 is over either range: the refresh clamps it.
-        if channel == 0 { 25_000 } else { kind.max() / 2 }
-    }
-}
-
-#[test]
-fn the_refresh_samples_the_sources_and_re_asserts_them_over_seed_writes() {
+fn a_new_configuration_applies_to_the_next_request() {
     let _clock = Clock::take();
     let (shared, _) = shared_with(Config::DEFAULT);
-    // `seed` lets a master write read-only points until the next refresh.
-    assert_eq!(ask(&shared, &[0x06, 0x01, 0x00, 0x00, 0x63])[0], 0x06); // version major := 99
-    assert_eq!(ask(&shared, &[0x06, 0x00, 0x00, 0x00, 0x01])[0], 0x06); // inputs := 1
-    assert_eq!(ask(&shared, &[0x06, 0x00, 0x07, 0x00, 0x01])[0], 0x06); // analog input 2: voltage
-    shared.refresh(&mut FixedInputs, &mut NoRobot);
-    shared.read(|image| {
-        assert_eq!(image.register(256), crate::VERSION.major);
-        assert_eq!(image.register(0), 0x00f0);
-        assert!(image.coil(4) && !image.coil(0));
-        assert_eq!(image.register(21), 0b10_0001);
-        assert!(image.coil(32) && image.coil(37));
-        assert_eq!(image.register(4), 20_000, "clamped to the current range");
-        assert_eq!(image.register(6), 5_000, "half the voltage range");
-        assert_eq!(image.register(259), 15, "no robot: NOT READY");
-    });
-    assert_eq!(WritePolicy::default(), WritePolicy::Seed);
-}
-
-#[test]
-fn event_setters_change_both_views_at_once() {
-    let _clock = Clock::take();
-    let (shared, _) = shared_with(Config::DEFAULT);
-    shared.set_digital_inputs(0x8001);
-    shared.set_tool_inputs(0b100);
-    shared.set_analog_input(1, 30_000);
-    let status = RobotStatus { state: RobotState::EmergencyStop, emergency_stop: true, ..RobotStatus::NOT_READY };
-    shared.set_robot_status(&status);
-    shared.read(|image| {
-        assert_eq!(image.register(0), 0x8001);
-        assert!(image.coil(0) && image.coil(15) && !image.coil(1));
-        assert!(image.coil(34) && image.register(21) == 0b100);
-        assert_eq!(image.register(6), 20_000, "clamped to the current range");
-        assert_eq!((image.register(259), image.register(261)), (6, 1));
-        assert!(image.coil(261));
-    });
+    let (wire, mut end) = Wire::new();
+    let mut session = pin!(serve(&mut end, shared, 0));
+    wire.send(&adu(1, 9, &READ_128));
+    assert!(poll_once(session.as_mut()).is_pending());
+    shared.set_config(Config { policy: Policy { unit_id: Some(7), ..Policy::default() }, ..Config::DEFAULT });
+    wire.send(&adu(2, 9, &READ_128));
+    assert!(poll_once(session.as_mut()).is_pending());
+    let replies = frames(&wire.take_replies());
+    assert_eq!(replies[0][7..], [0x03, 0x02, 0x00, 0x00]);
+    assert_eq!(replies[1][7..], [0x83, 0x0b], "unit 9 is no longer answered");
 }

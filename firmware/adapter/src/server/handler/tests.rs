@@ -33,7 +33,7 @@ fn strict() -> Policy {
 #[test]
 fn captured_requests_get_these_exact_replies() {
     let mut image = Image::new();
-    crate::VERSION.apply(&mut image);
+    image.set_version(&crate::VERSION);
     let [major, minor, patch] =
         [crate::VERSION.major, crate::VERSION.minor, crate::VERSION.patch].map(u16::to_be_bytes);
     #[rustfmt::skip]

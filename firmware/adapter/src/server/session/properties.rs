@@ -18,10 +18,11 @@ use core::task::Poll;
 use proptest::prelude::*;
 
 use super::{Error, serve};
+use crate::device::Device;
 use crate::map::WritePolicy;
 use crate::modbus::mbap::MAX_ADU_LEN;
-use crate::server::testing::{Clock, RecordingPins, Wire, frames, poll_once};
-use crate::server::{Config, Outcome, Policy, Shared};
+use crate::server::testing::{Clock, Wire, frames, poll_once, server_with};
+use crate::server::{Config, Outcome, Policy, Server, Watchdog};
 
 /// MBAP framing from the Implementation Guide: 6 bytes, then `length` more.
 fn oracle_frames(mut stream: &[u8]) -> (Vec<&[u8]>, bool) {
@@ -111,9 +112,9 @@ fn policy() -> impl Strategy<Value = Policy> {
         .prop_map(|(unit_id, write_policy, read_only)| Policy { unit_id, write_policy, read_only })
 }
 
-fn shared(policy: Policy) -> Shared<'static> {
+fn shared(policy: Policy) -> &'static Server<'static, Device<'static>> {
     let config = Config { policy, idle_timeout: None, ..Config::DEFAULT };
-    Shared::new(config, crate::VERSION, Box::leak(Box::default()) as &RecordingPins)
+    server_with(config, Watchdog::OFF).0
 }
 
 /// Checks `reply` against `request`; returns whether it acknowledged a write.
@@ -166,7 +167,7 @@ proptest! {
         wire.send(&bytes);
         wire.close();
         let result = {
-            let mut session = pin!(serve(&mut end, &server, 0));
+            let mut session = pin!(serve(&mut end, server, 0));
             match poll_once(session.as_mut()) {
                 Poll::Ready(result) => result,
                 Poll::Pending => return Err(TestCaseError::fail("the session waits with all input there")),
@@ -192,6 +193,6 @@ proptest! {
                 prop_assert!(acknowledged, "replaying an acknowledged write succeeds");
             }
         }
-        prop_assert_eq!(server.read(Clone::clone), model.read(Clone::clone), "the map holds exactly the acknowledged writes");
+        prop_assert_eq!(server.service().read(Clone::clone), model.service().read(Clone::clone), "the map holds exactly the acknowledged writes");
     }
 }

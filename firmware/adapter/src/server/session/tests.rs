@@ -7,16 +7,17 @@ use embassy_time::{Duration, Instant};
 use embedded_io_async::ErrorKind;
 
 use super::{Error, serve};
-use crate::server::testing::{Clock, RecordingPins, Wire, adu, frames, poll_once};
-use crate::server::{Config, Outcome, Shared};
+use crate::device::Device;
+use crate::server::testing::{Clock, Wire, adu, frames, poll_once, server_with};
+use crate::server::{Config, Outcome, Server, Watchdog};
 use test_support::fixtures::PYMODBUS;
 
 const IDLE: Duration = Duration::from_secs(10);
 const FRAME: Duration = Duration::from_secs(2);
 
-fn shared(max_connections: usize, idle_timeout: Option<Duration>) -> Shared<'static> {
+fn shared(max_connections: usize, idle_timeout: Option<Duration>) -> &'static Server<'static, Device<'static>> {
     let config = Config { max_connections, idle_timeout, frame_timeout: FRAME, ..Config::DEFAULT };
-    Shared::new(config, crate::VERSION, Box::leak(Box::default()) as &RecordingPins)
+    server_with(config, Watchdog::OFF).0
 }
 
 /// Every captured request, back to back.
@@ -47,7 +48,7 @@ fn run(bytes: &[u8], segment: usize) -> (Result<(), Error<ErrorKind>>, Vec<Vec<u
     wire.segment(segment);
     wire.send(bytes);
     wire.close();
-    let mut session = pin!(serve(&mut end, &shared, 0));
+    let mut session = pin!(serve(&mut end, shared, 0));
     let Poll::Ready(result) = poll_once(session.as_mut()) else { panic!("session waits with all input there") };
     (result, frames(&wire.take_replies()))
 }
@@ -76,7 +77,7 @@ fn a_request_sent_one_byte_at_a_time_is_answered_once_complete() {
     let _clock = Clock::take();
     let shared = shared(8, Some(IDLE));
     let (wire, mut end) = Wire::new();
-    let mut session = pin!(serve(&mut end, &shared, 0));
+    let mut session = pin!(serve(&mut end, shared, 0));
     let request = PYMODBUS[0].request;
     for (i, byte) in request.iter().enumerate() {
         wire.send(&[*byte]);
@@ -126,7 +127,7 @@ fn a_bad_length_is_seen_without_waiting_for_more_bytes() {
     let _clock = Clock::take();
     let shared = shared(8, Some(IDLE));
     let (wire, mut end) = Wire::new();
-    let mut session = pin!(serve(&mut end, &shared, 0));
+    let mut session = pin!(serve(&mut end, shared, 0));
     wire.send(&[0x00, 0x01, 0x00, 0x00, 0x01, 0x00]); // length 256
     assert_eq!(poll_once(session.as_mut()), Poll::Ready(Err(Error::BadLength(256))));
 }
@@ -136,7 +137,7 @@ fn a_foreign_protocol_id_is_skipped_and_the_session_carries_on() {
     let _clock = Clock::take();
     let shared = shared(8, Some(IDLE));
     let (wire, mut end) = Wire::new();
-    let mut session = pin!(serve(&mut end, &shared, 0));
+    let mut session = pin!(serve(&mut end, shared, 0));
     // Protocol id 1, a well-formed length, then a Modbus request.
     wire.send(&[0x00, 0x09, 0x00, 0x01, 0x00, 0x06, 0x01, 0x03, 0x01, 0x00, 0x00, 0x03]);
     wire.send(PYMODBUS[1].request);
@@ -149,7 +150,7 @@ fn an_idle_session_times_out() {
     let clock = Clock::take();
     let shared = shared(8, Some(IDLE));
     let (wire, mut end) = Wire::new();
-    let mut session = pin!(serve(&mut end, &shared, 0));
+    let mut session = pin!(serve(&mut end, shared, 0));
     assert!(poll_once(session.as_mut()).is_pending());
     clock.advance(Duration::from_secs(5));
     wire.send(PYMODBUS[0].request); // a request restarts the idle clock
@@ -166,7 +167,7 @@ fn without_an_idle_timeout_a_session_waits_forever() {
     let clock = Clock::take();
     let shared = shared(8, None);
     let (_wire, mut end) = Wire::new();
-    let mut session = pin!(serve(&mut end, &shared, 0));
+    let mut session = pin!(serve(&mut end, shared, 0));
     assert!(poll_once(session.as_mut()).is_pending());
     clock.advance(Duration::from_secs(24 * 3600));
     assert!(poll_once(session.as_mut()).is_pending());
@@ -178,7 +179,7 @@ fn a_frame_that_stops_halfway_times_out() {
     for idle in [Some(IDLE), None] {
         let shared = shared(8, idle);
         let (wire, mut end) = Wire::new();
-        let mut session = pin!(serve(&mut end, &shared, 0));
+        let mut session = pin!(serve(&mut end, shared, 0));
         wire.send(&PYMODBUS[0].request[..5]);
         assert!(poll_once(session.as_mut()).is_pending());
         clock.advance(FRAME - Duration::from_millis(1));
@@ -194,7 +195,7 @@ fn a_frame_completed_in_time_is_answered() {
     let clock = Clock::take();
     let shared = shared(8, Some(IDLE));
     let (wire, mut end) = Wire::new();
-    let mut session = pin!(serve(&mut end, &shared, 0));
+    let mut session = pin!(serve(&mut end, shared, 0));
     let request = PYMODBUS[0].request;
     wire.send(&request[..5]);
     assert!(poll_once(session.as_mut()).is_pending());
@@ -218,11 +219,11 @@ fn the_idlest_session_is_closed_to_make_room() {
     let (_wire_c, mut end_c) = Wire::new();
 
     assert_eq!(slots.open(0, 2, Instant::now(), false), None);
-    let mut a = pin!(serve(&mut end_a, &shared, 0));
+    let mut a = pin!(serve(&mut end_a, shared, 0));
     assert!(poll_once(a.as_mut()).is_pending());
     clock.advance(Duration::from_millis(100));
     assert_eq!(slots.open(1, 2, Instant::now(), false), None);
-    let mut b = pin!(serve(&mut end_b, &shared, 1));
+    let mut b = pin!(serve(&mut end_b, shared, 1));
     assert!(poll_once(b.as_mut()).is_pending());
 
     // A is older but has just made a request: B is now the idlest.
@@ -232,7 +233,7 @@ fn the_idlest_session_is_closed_to_make_room() {
     clock.advance(Duration::from_secs(1));
 
     assert_eq!(slots.open(2, 2, Instant::now(), false), Some(1));
-    let mut c = pin!(serve(&mut end_c, &shared, 2));
+    let mut c = pin!(serve(&mut end_c, shared, 2));
     assert!(poll_once(c.as_mut()).is_pending());
     assert_eq!(poll_once(b.as_mut()), Poll::Ready(Err(Error::Evicted)));
     assert!(poll_once(a.as_mut()).is_pending(), "the busy session is kept");
@@ -243,7 +244,7 @@ fn a_reset_ends_the_session() {
     let _clock = Clock::take();
     let shared = shared(8, Some(IDLE));
     let (wire, mut end) = Wire::new();
-    let mut session = pin!(serve(&mut end, &shared, 0));
+    let mut session = pin!(serve(&mut end, shared, 0));
     assert!(poll_once(session.as_mut()).is_pending());
     wire.reset();
     assert_eq!(poll_once(session.as_mut()), Poll::Ready(Err(Error::Transport(ErrorKind::ConnectionReset))));

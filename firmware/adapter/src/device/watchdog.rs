@@ -11,8 +11,9 @@
 
 use embassy_time::{Duration, Instant};
 
-use crate::io::{ANALOG_CHANNELS, ANALOG_OUTPUT_REGISTERS, AnalogType};
+use crate::io::{ANALOG_CHANNELS, AnalogType};
 use crate::map::Image;
+use crate::map::points::ANALOG_OUTPUT_REGISTERS;
 use crate::map::table::reg;
 
 /// What the outputs are set to when the watchdog trips.

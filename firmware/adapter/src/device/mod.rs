@@ -1,0 +1,209 @@
+//! The device state that every task shares: the process image, the outputs
+//! it drives, the communication watchdog, the diagnostics counters and the
+//! 100 ms refresh from the inputs and the robot. The Modbus server
+//! ([`crate::server`]) reaches it through [`crate::server::Service`]; the
+//! boards push input edges and robot events into it.
+
+mod stats;
+mod watchdog;
+
+use core::cell::{Cell, RefCell};
+
+use embassy_sync::blocking_mutex::Mutex;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_time::{Duration, Instant, Ticker};
+
+pub use self::stats::{Counters, Stats};
+pub use self::watchdog::{SafeState, Watchdog};
+use crate::io::{InputPins, OutputPins, Robot, RobotStatus, Version};
+use crate::map::Image;
+use crate::map::table::reg;
+use crate::modbus::mbap::MAX_ADU_LEN;
+use crate::server::handler::{self, Outcome, Policy};
+
+/// How often the source-backed points are refreshed and re-asserted.
+pub const REFRESH_PERIOD: Duration = Duration::from_millis(100);
+
+/// What the image lock guards: the image, and the watchdog's view of the
+/// requests that change or read it.
+struct State {
+    image: Image,
+    monitor: watchdog::Monitor,
+}
+
+/// The shared device: the image behind a blocking mutex (held while one
+/// request is applied, never across an `.await`), the board's outputs, the
+/// watchdog and the counters.
+pub struct Device<'a> {
+    state: Mutex<CriticalSectionRawMutex, RefCell<State>>,
+    watchdog: Mutex<CriticalSectionRawMutex, Cell<Watchdog>>,
+    outputs: &'a dyn OutputPins,
+    version: Version,
+    stats: Stats,
+}
+
+impl core::fmt::Debug for Device<'_> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Device")
+            .field("watchdog", &self.watchdog())
+            .field("version", &self.version)
+            .finish_non_exhaustive()
+    }
+}
+
+impl<'a> Device<'a> {
+    /// A fresh image with `version` in registers 256-258 and the robot NOT READY.
+    pub fn new(watchdog: Watchdog, version: Version, outputs: &'a dyn OutputPins) -> Self {
+        let mut image = Image::new();
+        image.set_version(&version);
+        let state = State { image, monitor: watchdog::Monitor::new(Instant::now()) };
+        Self {
+            state: Mutex::new(RefCell::new(state)),
+            watchdog: Mutex::new(Cell::new(watchdog)),
+            outputs,
+            version,
+            stats: Stats::new(),
+        }
+    }
+
+    /// The diagnostics counters.
+    pub fn stats(&self) -> &Stats {
+        &self.stats
+    }
+
+    /// The watchdog in force.
+    pub fn watchdog(&self) -> Watchdog {
+        self.watchdog.lock(Cell::get)
+    }
+
+    /// Puts a new watchdog configuration in force at once.
+    pub fn set_watchdog(&self, watchdog: Watchdog) {
+        self.watchdog.lock(|cell| cell.set(watchdog));
+    }
+
+    /// Answers one request frame into `reply` under `policy`, drives the
+    /// outputs at once if the request changed them, feeds the watchdog and counts.
+    pub fn respond(&self, frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], policy: &Policy) -> Outcome {
+        let watching = self.watchdog().timeout.is_some();
+        let outcome = self.state.lock(|state| {
+            let state = &mut *state.borrow_mut();
+            let outcome = handler::respond(frame, reply, &mut state.image, policy);
+            if let Outcome::Reply { written, exception, .. } = outcome {
+                if written.outputs {
+                    self.outputs.drive(&state.image.outputs());
+                }
+                if exception.is_none() && watching {
+                    state.monitor.valid_request(Instant::now());
+                }
+            }
+            outcome
+        });
+        match outcome {
+            Outcome::Reply { function, exception, .. } => {
+                Stats::count(&self.stats.requests);
+                if let Some(exception) = exception {
+                    self.stats.count_exception(exception, policy.read_only && function.is_write());
+                }
+            }
+            Outcome::Discard { .. } => Stats::count(&self.stats.bad_protocol),
+        }
+        outcome
+    }
+
+    /// Reads the image.
+    pub fn read<R>(&self, f: impl FnOnce(&Image) -> R) -> R {
+        self.state.lock(|state| f(&state.borrow().image))
+    }
+
+    /// Changes the image from a source (an input edge, a robot event): the
+    /// "event" update class. Bypasses the write policy.
+    pub fn update<R>(&self, f: impl FnOnce(&mut Image) -> R) -> R {
+        self.state.lock(|state| f(&mut state.borrow_mut().image))
+    }
+
+    /// Puts the outputs in their safe state if no valid request has come for
+    /// the watchdog's timeout (once per silence). Returns whether it tripped.
+    pub fn check_watchdog(&self) -> bool {
+        let watchdog = self.watchdog();
+        let Some(timeout) = watchdog.timeout else { return false };
+        let tripped = self.state.lock(|state| {
+            let state = &mut *state.borrow_mut();
+            let trips = state.monitor.check(Instant::now(), timeout);
+            if trips {
+                watchdog.safe_state.apply(&mut state.image);
+                self.outputs.drive(&state.image.outputs());
+            }
+            trips
+        });
+        if tripped {
+            Stats::count(&self.stats.watchdog_trips);
+            warn!("watchdog: no valid request for {} ms: outputs in their safe state", timeout.as_millis());
+        }
+        tripped
+    }
+
+    /// An edge on the ControlBox digital inputs (bit n = input n + 1): an event.
+    pub fn set_digital_inputs(&self, mask: u16) {
+        self.update(|image| image.set_register(reg::DIGITAL_INPUTS, mask));
+    }
+
+    /// An edge on the tool digital inputs (bit n = input n + 1): an event.
+    pub fn set_tool_inputs(&self, mask: u8) {
+        self.update(|image| image.set_register(reg::TOOL_INPUTS, u16::from(mask)));
+    }
+
+    /// A new reading of analog input `channel` (0 or 1), in thousandths of the
+    /// unit its type register selects; clamped to that type's range.
+    pub fn set_analog_input(&self, channel: usize, value: u16) {
+        self.update(|image| image.set_analog_input(channel, value));
+    }
+
+    /// A change of the robot's state or flags: an event.
+    pub fn set_robot_status(&self, status: &RobotStatus) {
+        self.update(|image| image.set_robot_status(status));
+    }
+
+    /// Drives the outputs from the image (at start-up, or after a fault).
+    pub fn drive_outputs(&self) {
+        self.read(|image| self.outputs.drive(&image.outputs()));
+    }
+
+    /// One refresh: samples every source and re-asserts every source-backed
+    /// point (so a `seed`-policy write to a read-only point lasts at most one period).
+    pub fn refresh(&self, inputs: &mut impl InputPins, robot: &mut impl Robot) {
+        let types = self.read(Image::analog_input_types);
+        let digital = inputs.digital();
+        let tool = inputs.tool();
+        let analog = [0, 1].map(|channel| {
+            let kind = types.get(channel).copied().unwrap_or_default();
+            inputs.analog(channel, kind).min(kind.max())
+        });
+        let status = robot.status();
+        let telemetry = robot.telemetry();
+        self.update(|image| {
+            image.set_register(reg::DIGITAL_INPUTS, digital);
+            image.set_register(reg::TOOL_INPUTS, u16::from(tool));
+            for (channel, value) in analog.into_iter().enumerate() {
+                image.set_analog_input(channel, value);
+            }
+            image.set_version(&self.version);
+            image.set_robot_status(&status);
+            image.set_telemetry(&telemetry);
+        });
+    }
+}
+
+/// The 100 ms task's body: refresh, check the communication watchdog, then
+/// wait for the next period. Each binary wraps it in a task with its own
+/// pins and robot.
+pub async fn refresh_loop(device: &Device<'_>, inputs: &mut impl InputPins, robot: &mut impl Robot) -> ! {
+    let mut ticker = Ticker::every(REFRESH_PERIOD);
+    loop {
+        device.refresh(inputs, robot);
+        device.check_watchdog();
+        ticker.next().await;
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,135 @@
+//! The network policy every board runs (and hal-sim, on its TAP): how the
+//! device gets its address, and what a link change does. One policy, so the
+//! QEMU image exercises the logic the NUCLEO runs.
+//!
+//! - `dhcp`: every link-up starts a fresh DHCP exchange (a renewal after a
+//!   cable was pulled). No lease within `dhcp_timeout_s`: the static
+//!   `address`, if one is set, applies until the next link-up; with none,
+//!   DHCP keeps trying.
+//! - `static`: the static address from the start, on every link-up.
+//! - Link loss closes every Modbus session at once: its peer may be gone,
+//!   and after a renewal the address may have changed.
+
+use embassy_futures::select::select;
+use embassy_net::{ConfigV4, DhcpConfig, Ipv4Address, Ipv4Cidr, Stack, StaticConfigV4};
+use embassy_time::{Duration, with_timeout};
+
+use crate::fmt::Ip;
+use crate::server::{Server, Service};
+use crate::settings::{Cidr, NetMode, NetworkSettings};
+
+/// A locally administered, unicast MAC address from a chip's 96-bit unique
+/// ID: `02` then 40 bits of the ID's FNV-1a hash. The same chip always gets
+/// the same address; two chips collide with odds of about 1 in 10^12.
+pub const fn mac_from_uid(uid: &[u8; 12]) -> [u8; 6] {
+    const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+    const FNV_PRIME: u64 = 0x0000_0100_0000_01b3;
+    let mut hash = FNV_OFFSET;
+    let mut rest = uid.as_slice();
+    while let [byte, tail @ ..] = rest {
+        hash ^= *byte as u64;
+        hash = hash.wrapping_mul(FNV_PRIME);
+        rest = tail;
+    }
+    let [a, b, c, d, e, ..] = hash.to_be_bytes();
+    // Bit 1 of the first octet: locally administered; bit 0 clear: unicast.
+    [0x02, a, b, c, d, e]
+}
+
+/// The address configuration to start with: DHCP, or the static address.
+pub fn initial_config(settings: &NetworkSettings) -> embassy_net::Config {
+    match static_config(settings) {
+        Some(config) if settings.mode == NetMode::Static => embassy_net::Config::ipv4_static(config),
+        _ => embassy_net::Config::dhcpv4(DhcpConfig::default()),
+    }
+}
+
+/// The static address and gateway, if an address is set.
+pub fn static_config(settings: &NetworkSettings) -> Option<StaticConfigV4> {
+    let Cidr { address, prefix_len } = settings.address?;
+    Some(StaticConfigV4 {
+        address: Ipv4Cidr::new(Ipv4Address::from(address), prefix_len),
+        gateway: settings.gateway.map(|gateway| Ipv4Address::from(gateway.0)),
+        dns_servers: Default::default(),
+    })
+}
+
+/// Follows the link forever: configures the address on each link-up and
+/// closes the sessions on each link loss.
+pub async fn run<S: Service>(stack: Stack<'_>, settings: &NetworkSettings, server: &Server<'_, S>) -> ! {
+    let port = server.config().port;
+    loop {
+        stack.wait_link_up().await;
+        info!("link up");
+        select(stack.wait_link_down(), configure(stack, settings, port)).await;
+        warn!("link down: closing {} sessions", server.slots().open_count());
+        server.slots().evict_all();
+    }
+}
+
+/// Sets the address for this link-up, then logs each change. Never returns.
+async fn configure(stack: Stack<'_>, settings: &NetworkSettings, port: u16) -> ! {
+    let fallback = static_config(settings);
+    // The static address at once in static mode; else DHCP, with the
+    // static address (if any) after the timeout.
+    let (first, mut dhcp_timeout) = match (settings.mode, &fallback) {
+        (NetMode::Static, Some(config)) => (ConfigV4::Static(config.clone()), None),
+        (_, Some(_)) => {
+            (ConfigV4::Dhcp(DhcpConfig::default()), Some(Duration::from_secs(u64::from(settings.dhcp_timeout_s))))
+        }
+        (_, None) => (ConfigV4::Dhcp(DhcpConfig::default()), None),
+    };
+    stack.set_config_v4(first);
+    loop {
+        let up = match dhcp_timeout.take() {
+            Some(timeout) => with_timeout(timeout, stack.wait_config_up()).await.is_ok(),
+            None => {
+                stack.wait_config_up().await;
+                true
+            }
+        };
+        match (up, &fallback) {
+            (false, Some(config)) => {
+                warn!("no DHCP lease after {} s: using the static address", settings.dhcp_timeout_s);
+                stack.set_config_v4(ConfigV4::Static(config.clone()));
+            }
+            _ => {
+                if let Some(config) = stack.config_v4() {
+                    info!("Modbus TCP server at {}:{}", Ip(config.address.address().octets()), port);
+                }
+                stack.wait_config_down().await;
+                warn!("address lost; waiting for DHCP");
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_mac_is_local_unicast_and_stable() {
+        let uid = [0x33, 0x00, 0x2f, 0x00, 0x0d, 0x51, 0x33, 0x30, 0x34, 0x38, 0x37, 0x30];
+        let mac = mac_from_uid(&uid);
+        assert_eq!(mac[0], 0x02);
+        assert_eq!(mac, mac_from_uid(&uid));
+        let mut other = uid;
+        other[11] ^= 1;
+        assert_ne!(mac, mac_from_uid(&other));
+    }
+
+    #[test]
+    fn static_and_dhcp_start_as_the_settings_say() {
+        let mut network = crate::settings::Settings::DEFAULT.network;
+        assert!(static_config(&network).is_none());
+        assert!(matches!(initial_config(&network).ipv4, ConfigV4::Dhcp(_)));
+        network.address = Cidr::parse_optional("198.18.0.2/24").unwrap();
+        network.gateway = crate::settings::Ipv4::parse_optional("198.18.0.1").unwrap();
+        assert!(matches!(initial_config(&network).ipv4, ConfigV4::Dhcp(_)), "the address is DHCP's fallback");
+        network.mode = NetMode::Static;
+        let ConfigV4::Static(config) = initial_config(&network).ipv4 else { panic!("static") };
+        assert_eq!(config.address, Ipv4Cidr::new(Ipv4Address::new(198, 18, 0, 2), 24));
+        assert_eq!(config.gateway, Some(Ipv4Address::new(198, 18, 0, 1)));
+    }
+}

@@ -1,0 +1,317 @@
+//! Text to values, in `const` context: the same functions check a board's
+//! build-time variables (at compile time), hal-sim's command line and, later,
+//! the HTTP API and the flash store (at run time).
+//!
+//! Each returns [`Invalid`] for a text it does not take (the settings table
+//! holds the rule to tell the user), never panics, and reads its input by
+//! pattern, so no index can go out of bounds.
+
+use core::fmt;
+
+use crate::server::access::{AllowList, Network};
+
+/// A text that is not a valid value of its type.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Invalid;
+
+/// A decimal number of at most 9 digits.
+pub const fn decimal(text: &str) -> Option<u64> {
+    decimal_bytes(text.as_bytes())
+}
+
+/// [`decimal`] over bytes.
+pub const fn decimal_bytes(bytes: &[u8]) -> Option<u64> {
+    if bytes.is_empty() || bytes.len() > 9 {
+        return None;
+    }
+    let mut rest = bytes;
+    let mut value = 0u64;
+    while let [digit, tail @ ..] = rest {
+        if !digit.is_ascii_digit() {
+            return None;
+        }
+        value = value * 10 + (*digit - b'0') as u64;
+        rest = tail;
+    }
+    Some(value)
+}
+
+/// A decimal number in `min..=max`.
+pub const fn number_in(text: &str, min: u64, max: u64) -> Result<u64, Invalid> {
+    match decimal(text) {
+        Some(value) if value >= min && value <= max => Ok(value),
+        _ => Err(Invalid),
+    }
+}
+
+/// A bit mask at most `max`: decimal, or hexadecimal after `0x`.
+pub const fn mask(text: &str, max: u16) -> Result<u16, Invalid> {
+    let value = match text.as_bytes() {
+        [b'0', b'x' | b'X', hex @ ..] => hex_bytes(hex),
+        _ => decimal(text),
+    };
+    match value {
+        Some(value) if value <= max as u64 => Ok(value as u16),
+        _ => Err(Invalid),
+    }
+}
+
+/// At most 4 hexadecimal digits.
+const fn hex_bytes(digits: &[u8]) -> Option<u64> {
+    if digits.is_empty() || digits.len() > 4 {
+        return None;
+    }
+    let mut value = 0u64;
+    let mut rest = digits;
+    while let [digit, tail @ ..] = rest {
+        let nibble = match digit {
+            b'0'..=b'9' => *digit - b'0',
+            b'a'..=b'f' => *digit - b'a' + 10,
+            b'A'..=b'F' => *digit - b'A' + 10,
+            _ => return None,
+        };
+        value = value * 16 + nibble as u64;
+        rest = tail;
+    }
+    Some(value)
+}
+
+/// Whether `text` is exactly `word`.
+pub const fn is(text: &str, word: &str) -> bool {
+    let (mut a, mut b) = (text.as_bytes(), word.as_bytes());
+    loop {
+        match (a, b) {
+            ([], []) => return true,
+            ([x, a_tail @ ..], [y, b_tail @ ..]) if *x == *y => {
+                a = a_tail;
+                b = b_tail;
+            }
+            _ => return false,
+        }
+    }
+}
+
+/// Splits `bytes` at the first `separator`.
+pub const fn split_once(bytes: &[u8], separator: u8) -> Option<(&[u8], &[u8])> {
+    let mut rest = bytes;
+    while let [byte, tail @ ..] = rest {
+        if *byte == separator {
+            let (head, _) = bytes.split_at(bytes.len() - rest.len());
+            return Some((head, tail));
+        }
+        rest = tail;
+    }
+    None
+}
+
+/// Dotted-quad IPv4 address, such as `192.168.1.50`.
+pub const fn ipv4(text: &[u8]) -> Option<[u8; 4]> {
+    let mut rest = text;
+    let mut address = 0u32;
+    let mut octets = 0;
+    loop {
+        let (octet, tail, last) = match split_once(rest, b'.') {
+            Some((octet, tail)) => (octet, tail, false),
+            None => (rest, &[] as &[u8], true),
+        };
+        let value = match decimal_bytes(octet) {
+            Some(value) if value <= 255 && octet.len() <= 3 => value,
+            _ => return None,
+        };
+        address = (address << 8) | value as u32;
+        octets += 1;
+        if last {
+            return if octets == 4 { Some(address.to_be_bytes()) } else { None };
+        }
+        if octets == 4 {
+            return None;
+        }
+        rest = tail;
+    }
+}
+
+/// An IPv4 address, as a setting shows it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Ipv4(pub [u8; 4]);
+
+impl Ipv4 {
+    /// `192.168.1.1`.
+    pub const fn parse(text: &str) -> Result<Self, Invalid> {
+        match ipv4(text.as_bytes()) {
+            Some(address) => Ok(Self(address)),
+            None => Err(Invalid),
+        }
+    }
+
+    /// `none` (or empty) is no address; otherwise as [`Self::parse`].
+    pub const fn parse_optional(text: &str) -> Result<Option<Self>, Invalid> {
+        if is_none(text) {
+            return Ok(None);
+        }
+        match Self::parse(text) {
+            Ok(address) => Ok(Some(address)),
+            Err(e) => Err(e),
+        }
+    }
+}
+
+impl fmt::Display for Ipv4 {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let [a, b, c, d] = self.0;
+        write!(f, "{a}.{b}.{c}.{d}")
+    }
+}
+
+/// Whether a text means "no value": `none` or nothing.
+pub const fn is_none(text: &str) -> bool {
+    text.is_empty() || is(text, "none")
+}
+
+/// An interface address with its prefix length, such as `192.168.1.50/24`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Cidr {
+    pub address: [u8; 4],
+    /// 1..=32.
+    pub prefix_len: u8,
+}
+
+impl Cidr {
+    /// `none` (or empty) is no address; else a unicast `a.b.c.d/n` with n in
+    /// 1..=32 (a bare address is a /24).
+    pub const fn parse_optional(text: &str) -> Result<Option<Self>, Invalid> {
+        if is_none(text) {
+            return Ok(None);
+        }
+        let (address, prefix_len) = match split_once(text.as_bytes(), b'/') {
+            Some((address, prefix)) => match decimal_bytes(prefix) {
+                Some(prefix) if prefix >= 1 && prefix <= 32 => (address, prefix as u8),
+                _ => return Err(Invalid),
+            },
+            None => (text.as_bytes(), 24),
+        };
+        match ipv4(address) {
+            Some(address) if is_unicast(address) => Ok(Some(Self { address, prefix_len })),
+            _ => Err(Invalid),
+        }
+    }
+
+    /// Whether `address` lies in this interface's network.
+    pub const fn contains(&self, address: [u8; 4]) -> bool {
+        match Network::new(self.address, self.prefix_len) {
+            Some(network) => network.contains(address),
+            None => false,
+        }
+    }
+}
+
+impl fmt::Display for Cidr {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}/{}", Ipv4(self.address), self.prefix_len)
+    }
+}
+
+/// Whether a device may take `address`: not 0.0.0.0, loopback, multicast or broadcast.
+pub const fn is_unicast(address: [u8; 4]) -> bool {
+    !matches!(address, [0, 0, 0, 0] | [127, ..] | [224..=239, ..] | [255, 255, 255, 255])
+}
+
+/// A network of an allow-list: `address/prefix` (prefix 0..=32) or a bare address (a /32).
+pub const fn network(text: &[u8]) -> Option<Network> {
+    let (address, prefix) = match split_once(text, b'/') {
+        Some((address, prefix)) => match decimal_bytes(prefix) {
+            Some(prefix) if prefix <= 32 => (address, prefix as u8),
+            _ => return None,
+        },
+        None => (text, 32),
+    };
+    match ipv4(address) {
+        Some(address) => Network::new(address, prefix),
+        None => None,
+    }
+}
+
+/// An allow-list: `any` (or empty: everyone), or up to 8 comma-separated networks.
+pub const fn allow_list(text: &str) -> Result<Option<AllowList>, Invalid> {
+    if text.is_empty() || is(text, "any") {
+        return Ok(None);
+    }
+    let mut list = AllowList::EMPTY;
+    let mut rest = text.as_bytes();
+    loop {
+        let (item, tail, last) = match split_once(rest, b',') {
+            Some((item, tail)) => (item, tail, false),
+            None => (rest, &[] as &[u8], true),
+        };
+        let Some(network) = network(item) else { return Err(Invalid) };
+        list = match list.with(network) {
+            Some(list) => list,
+            None => return Err(Invalid),
+        };
+        if last {
+            return Ok(Some(list));
+        }
+        rest = tail;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn addresses_parse() {
+        assert_eq!(ipv4(b"192.168.1.50"), Some([192, 168, 1, 50]));
+        assert_eq!(ipv4(b"0.0.0.0"), Some([0, 0, 0, 0]));
+        assert_eq!(ipv4(b"255.255.255.255"), Some([255; 4]));
+        for bad in
+            ["", "1.2.3", "1.2.3.4.5", "256.1.1.1", "1..2.3", "1.2.3.", ".1.2.3", "a.b.c.d", "1.2.3.4 ", "0001.2.3.4"]
+        {
+            assert_eq!(ipv4(bad.as_bytes()), None, "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn prefixes_parse() {
+        let cidr = |text| Cidr::parse_optional(text);
+        assert_eq!(cidr("10.0.0.7/8"), Ok(Some(Cidr { address: [10, 0, 0, 7], prefix_len: 8 })));
+        assert_eq!(cidr("198.18.0.2"), Ok(Some(Cidr { address: [198, 18, 0, 2], prefix_len: 24 })));
+        assert_eq!(cidr("none"), Ok(None));
+        for bad in ["10.0.0.7/", "10.0.0.7/0", "10.0.0.7/33", "/24", "10.0.0.7/2x", "nothing", "0.0.0.0/8", "224.0.0.1"]
+        {
+            assert!(cidr(bad).is_err(), "{bad:?}");
+        }
+        assert!(Cidr { address: [10, 0, 0, 7], prefix_len: 8 }.contains([10, 9, 9, 9]));
+        assert!(!Cidr { address: [10, 0, 0, 7], prefix_len: 8 }.contains([11, 0, 0, 7]));
+    }
+
+    #[test]
+    fn numbers_and_words_parse() {
+        assert_eq!(decimal("10"), Some(10));
+        assert_eq!(decimal(""), None);
+        assert_eq!(decimal("-1"), None);
+        assert_eq!(decimal("1234567890"), None);
+        assert_eq!(number_in("5", 5, 600), Ok(5));
+        assert_eq!(number_in("601", 5, 600), Err(Invalid));
+        assert!(is("dhcp", "dhcp") && !is("dhcp", "dhc") && !is("dhc", "dhcp"));
+    }
+
+    #[test]
+    fn masks_and_networks_parse() {
+        assert_eq!(mask("0x8001", u16::MAX), Ok(0x8001));
+        assert_eq!(mask("65535", u16::MAX), Ok(u16::MAX));
+        assert_eq!(mask("0x40", 0x3f), Err(Invalid));
+        for bad in ["", "0x", "0x10000", "65536", "0xg", "-1"] {
+            assert_eq!(mask(bad, u16::MAX), Err(Invalid), "{bad:?}");
+        }
+        let list = allow_list("192.168.1.0/24,10.0.0.9").unwrap().unwrap();
+        assert!(list.allows([192, 168, 1, 77]) && list.allows([10, 0, 0, 9]) && !list.allows([10, 0, 0, 8]));
+        assert!(allow_list("0.0.0.0/0").unwrap().unwrap().allows([8, 8, 8, 8]));
+        assert_eq!(allow_list("any"), Ok(None));
+        let nine = "1.0.0.1,1.0.0.2,1.0.0.3,1.0.0.4,1.0.0.5,1.0.0.6,1.0.0.7,1.0.0.8,1.0.0.9";
+        for bad in ["10.0.0.0/33", "10.0.0.0/8,", ",10.0.0.0/8", "10.0.0", nine] {
+            assert!(allow_list(bad).is_err(), "{bad:?}");
+        }
+    }
+}
