@@ -5,7 +5,10 @@ use core::pin::pin;
 
 use embassy_time::Duration;
 
-use super::testing::{Clock, RecordingPins, Wire, adu, frames, poll_once};
+use test_support::duplex::{Wire, poll_once};
+use test_support::framer::{adu, split_replies};
+
+use super::testing::{Clock, RecordingPins};
 use super::*;
 use crate::io::{AnalogType, NoRobot, RobotState, RobotStatus};
 use crate::map::WritePolicy;
@@ -17,7 +20,7 @@ fn shared_with(config: Config) -> (Shared<'static>, &'static RecordingPins) {
 
 fn ask(shared: &Shared<'_>, pdu: &[u8]) -> Vec<u8> {
     let mut reply = [0u8; MAX_ADU_LEN];
-    match shared.respond(&adu(1, 1, pdu), &mut reply) {
+    match shared.respond(&adu(1, 0, 1, pdu), &mut reply) {
         Outcome::Reply { len, .. } => reply[7..len].to_vec(),
         Outcome::Discard { .. } => Vec::new(),
     }
@@ -34,8 +37,7 @@ fn counters_follow_what_the_server_sees() {
     ask(&shared, &[0x2b, 0x0e, 0x01, 0x00]); // unknown here: 01
     ask(&shared, &[0x03, 0x01, 0xb4, 0x00, 0x01]); // register 436: 02
     ask(&shared, &[0x05, 0x00, 0x10, 0x12, 0x34]); // bad coil value: 03
-    let mut foreign = adu(1, 1, &READ_128);
-    foreign[3] = 1;
+    let foreign = adu(1, 1, 1, &READ_128);
     assert_eq!(shared.respond(&foreign, &mut [0; MAX_ADU_LEN]), Outcome::Discard { protocol_id: 1 });
     let c = shared.stats().snapshot();
     assert_eq!((c.requests, c.bad_function, c.bad_address, c.bad_value, c.bad_protocol), (4, 1, 1, 1, 1));
@@ -55,11 +57,11 @@ fn a_read_only_client_may_read_and_its_writes_get_exception_01() {
         &[0x10, 0x00, 0x80, 0x00, 0x01, 0x02, 0x00, 0x01],
     ];
     for pdu in writes {
-        wire.send(&adu(7, 1, pdu));
+        wire.send(&adu(7, 0, 1, pdu));
     }
-    wire.send(&adu(8, 1, &READ_128));
+    wire.send(&adu(8, 0, 1, &READ_128));
     assert!(poll_once(session.as_mut()).is_pending());
-    let replies = frames(&wire.take_replies());
+    let replies = split_replies(&wire.take_replies());
     for (reply, pdu) in replies.iter().zip(writes) {
         assert_eq!(reply[7..], [pdu[0] | 0x80, 0x01]);
     }
@@ -78,9 +80,9 @@ fn a_server_wide_read_only_policy_holds_whatever_the_slot_says() {
     shared.slots().open(0, 8, embassy_time::Instant::now(), false);
     let (wire, mut end) = Wire::new();
     let mut session = pin!(serve(&mut end, &shared, 0));
-    wire.send(&adu(1, 1, &WRITE_COIL_16_ON));
+    wire.send(&adu(1, 0, 1, &WRITE_COIL_16_ON));
     assert!(poll_once(session.as_mut()).is_pending());
-    assert_eq!(frames(&wire.take_replies())[0][7..], [0x85, 0x01]);
+    assert_eq!(split_replies(&wire.take_replies())[0][7..], [0x85, 0x01]);
 }
 
 #[test]
