@@ -5,17 +5,18 @@
 //! [`handler`], [`codec`]), so the same checks also run as plain tests over
 //! the seed inputs (`cargo test` in this workspace).
 //!
-//! The checks mirror the library's session property test
-//! (`firmware/src/server/session/properties.rs`): any stream, cut into reads
-//! of any size, is framed by the MBAP length field only, every Modbus frame
-//! gets exactly one well-formed reply in order, and the map (and the pins)
-//! change only through acknowledged writes.
+//! The checks are those of the library's session property test
+//! (`firmware/adapter/src/server/session/properties.rs`), against the same
+//! reference (test-support's framer and reply checks, written from the
+//! specification): any stream, cut into reads of any size, is framed by the
+//! MBAP length field only, every Modbus frame gets exactly one well-formed
+//! reply in order, and the map (and the pins) change only through
+//! acknowledged writes.
 
 pub mod check;
 pub mod connection;
 pub mod input;
 
-use core::cell::Cell;
 use core::pin::pin;
 use core::task::Poll;
 
@@ -23,9 +24,11 @@ use adapter::map::Image;
 use adapter::server::{self, Config, Error, Outcome, Policy, Shared, handler};
 use modbus::mbap::{self, MAX_ADU_LEN};
 use modbus::{Exception, Request, Response};
+use test_support::duplex::poll_once;
+use test_support::framer::{self, Next, split_replies};
+use test_support::reply::Answer;
 
-use check::{Pins, check_reply, oracle_frames, split_replies};
-use connection::{Connection, poll_once};
+use check::Pins;
 pub use input::{HandlerInput, SessionInput};
 
 /// A server as the tests configure it: no idle timeout (the mock clock never
@@ -45,17 +48,16 @@ pub fn session(data: &[u8]) {
     let policy = input.policy();
     let pins = Pins::default();
     let server = shared(policy, &pins);
-    let stalls = Cell::new(0usize);
-    let mut end = Connection::new(&input, &stalls);
+    let (wire, mut end) = connection::connect(&input);
     let result = {
         let mut session = pin!(server::serve(&mut end, &server, 0));
         let mut polls = 0;
         loop {
-            let before = stalls.get();
+            let before = wire.stalls();
             match poll_once(session.as_mut()) {
                 Poll::Ready(result) => break result,
                 Poll::Pending => {
-                    assert!(stalls.get() > before, "the session waits with all input there and nothing stalled");
+                    assert!(wire.stalls() > before, "the session waits with all input there and nothing stalled");
                     polls += 1;
                     assert!(polls < MAX_POLLS, "the session never ends");
                 }
@@ -63,15 +65,15 @@ pub fn session(data: &[u8]) {
         }
     };
 
-    let (requests, lost) = oracle_frames(input.stream);
+    let framed = framer::split(input.stream);
     match result {
-        Ok(()) => assert!(!lost, "the stream has a bad length field, yet the session ended cleanly"),
-        Err(Error::BadLength(len)) => assert!(lost, "BadLength({len}) on a stream the oracle frames whole"),
+        Ok(()) => assert_eq!(framed.bad_length, None, "a clean end after a bad length field"),
+        Err(Error::BadLength(len)) => assert_eq!(framed.bad_length, Some(len), "BadLength({len}) on this stream"),
         Err(other) => panic!("the session ended with {other:?}"),
     }
-    let modbus: Vec<&[u8]> = requests.into_iter().filter(|r| r.get(2..4) == Some(&[0, 0])).collect();
-    let replies = split_replies(&end.sent);
-    assert_eq!(replies.len(), modbus.len(), "one reply per Modbus frame, none for others");
+    let requests = framed.requests();
+    let replies = split_replies(&wire.take_replies());
+    assert_eq!(replies.len(), requests.len(), "one reply per Modbus frame, none for others");
 
     // The model: a fresh server that sees only the acknowledged writes and
     // the reads. At each step it holds what the session's server should
@@ -79,34 +81,28 @@ pub fn session(data: &[u8]) {
     let model_pins = Pins::default();
     let model = shared(policy, &model_pins);
     let mut expected = [0u8; MAX_ADU_LEN];
-    for (request, reply) in modbus.iter().zip(&replies) {
-        let acknowledged_write = check_reply(request, reply, &policy);
-        let is_read = matches!(request.get(7), Some(0x01 | 0x03)) && !is_exception(reply);
-        if acknowledged_write || is_read {
+    for (request, reply) in requests.iter().zip(&replies) {
+        if let Answer::Read | Answer::Write = check::reply(request, reply, &policy) {
             let outcome = model.respond(request, &mut expected);
             let Outcome::Reply { len, exception, .. } = outcome else { panic!("the model discarded {request:02x?}") };
             assert_eq!(exception, None, "replaying {request:02x?} on the model fails");
-            assert_eq!(&expected[..len], *reply, "the model answers {request:02x?} otherwise");
+            assert_eq!(&expected[..len], reply, "the model answers {request:02x?} otherwise");
         } else {
             // Refused: the same refusal from the model, and nothing changed.
             let before = model.read(Clone::clone);
             let mut copy = before.clone();
             let outcome = handler::respond(request, &mut expected, &mut copy, &policy);
             let Outcome::Reply { len, .. } = outcome else { panic!("the handler discarded {request:02x?}") };
-            assert_eq!(&expected[..len], *reply, "the model refuses {request:02x?} otherwise");
+            assert_eq!(&expected[..len], reply, "the model refuses {request:02x?} otherwise");
             assert_eq!(copy, before, "a refused request {request:02x?} changed the map");
         }
     }
     let image = server.read(Clone::clone);
     assert!(image == model.read(Clone::clone), "the map holds exactly the acknowledged writes");
     check::pins_follow_map(&pins, &image);
-    let frames = oracle_frames(input.stream).0.len();
-    let expected = check::expected_counters(&modbus, &replies, frames - modbus.len(), lost, &policy);
+    let lost = framed.bad_length.is_some();
+    let expected = check::expected_counters(&requests, &replies, framed.skipped(), lost, &policy);
     assert_eq!(server.stats().snapshot(), expected, "the diagnostics counters");
-}
-
-fn is_exception(reply: &[u8]) -> bool {
-    reply.get(7).is_some_and(|f| f & 0x80 != 0)
 }
 
 /// Answers each record of `data` (see [`HandlerInput`]) with the handler
@@ -120,7 +116,7 @@ pub fn handler(data: &[u8]) {
     for frame in input.frames() {
         let before = image.clone();
         let outcome = handler::respond(frame, &mut reply, &mut image, &policy);
-        let protocol_id = be_u16(frame, 2).unwrap_or(0);
+        let protocol_id = framer::protocol_id(frame).unwrap_or(0);
         let (len, exception) = match outcome {
             Outcome::Discard { protocol_id: said } => {
                 assert_ne!(protocol_id, mbap::MODBUS_PROTOCOL_ID, "a Modbus frame discarded");
@@ -133,13 +129,13 @@ pub fn handler(data: &[u8]) {
         assert_eq!(protocol_id, mbap::MODBUS_PROTOCOL_ID, "a reply to protocol id {protocol_id}");
         assert!((mbap::HEADER_LEN + 2..=MAX_ADU_LEN).contains(&len), "reply length {len}");
         let out = &reply[..len];
-        assert_eq!(usize::from(be_u16(out, 4).unwrap_or(0)), len - 6, "the reply's length field");
+        assert_eq!(framer::length_field(out).map(usize::from), Some(len - 6), "the reply's length field");
         if frame.len() >= mbap::HEADER_LEN {
             assert_eq!(out[..2], frame[..2], "transaction id echoed");
             assert_eq!(out[6], frame[6], "unit id echoed");
         }
         // The PDU as the length field delimits it (the handler trusts it).
-        let length = usize::from(be_u16(frame, 4).unwrap_or(0));
+        let length = usize::from(framer::length_field(frame).unwrap_or(0));
         let function = frame.get(7..6 + length).and_then(<[u8]>::first).copied().unwrap_or(0);
         match exception {
             Some(e) => {
@@ -154,8 +150,8 @@ pub fn handler(data: &[u8]) {
         }
         // A frame whose length field covers exactly its bytes is a real
         // request: its reply passes the session's checks too.
-        if mbap::next_frame_len(frame) == Ok(Some(frame.len())) {
-            check_reply(frame, out, &policy);
+        if framer::next(frame) == Next::Frame(frame.len()) {
+            check::reply(frame, out, &policy);
         }
     }
 }
@@ -184,19 +180,10 @@ pub fn codec(data: &[u8]) {
     }
 
     let framed = mbap::next_frame_len(pdu);
-    let expected = match be_u16(pdu, 4) {
-        None => Ok(None),
-        Some(length) if !(2..=254).contains(&length) => Err(mbap::Error::BadLength(length)),
-        Some(length) if pdu.len() < 6 + usize::from(length) => Ok(None),
-        Some(length) => Ok(Some(6 + usize::from(length))),
+    let expected = match framer::next(pdu) {
+        Next::Incomplete => Ok(None),
+        Next::Frame(len) => Ok(Some(len)),
+        Next::BadLength(length) => Err(mbap::Error::BadLength(length)),
     };
     assert_eq!(framed, expected, "framing {pdu:02x?}");
-}
-
-/// A big-endian `u16` at `offset`.
-pub(crate) fn be_u16(bytes: &[u8], offset: usize) -> Option<u16> {
-    match bytes.get(offset..offset + 2)? {
-        [hi, lo] => Some(u16::from_be_bytes([*hi, *lo])),
-        _ => None,
-    }
 }

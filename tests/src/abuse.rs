@@ -1,7 +1,8 @@
 //! Helpers of the abuse tests (`tests/hal_sim_abuse.rs`): a ledger of the
 //! writes hal-sim acknowledged, replayed on the library's own map; random
 //! request streams; and the final check that hal-sim's map holds exactly the
-//! acknowledged writes.
+//! acknowledged writes. The streams are framed, and the replies split, by
+//! test-support's reference framer (`test_support::framer`).
 //!
 //! The ledger compares only the points a master owns: the general-purpose
 //! registers 128-255 and the outputs (registers 1, 16-19, 22, the analog
@@ -14,6 +15,7 @@ use std::time::Duration;
 use adapter::map::Image;
 use adapter::server::{Outcome, Policy, handler};
 use modbus::mbap::MAX_ADU_LEN;
+use test_support::framer::{adu, split_replies};
 use tokio::io::{AsyncRead, AsyncReadExt};
 use tokio_modbus::client::Context;
 use tokio_modbus::prelude::Reader;
@@ -161,32 +163,10 @@ pub fn owned_coil(address: u16) -> bool {
     matches!(address, 16..=31 | 38..=43)
 }
 
-/// MBAP framing (Implementation Guide V1.0b, 3.1.3): 6 bytes, then `length`
-/// more, with `length` in 2..=254. Returns the whole frames and whether the
-/// stream is lost at a bad length field.
-pub fn oracle_frames(mut stream: &[u8]) -> (Vec<&[u8]>, bool) {
-    let mut out = Vec::new();
-    while stream.len() >= 6 {
-        let length = usize::from(u16::from_be_bytes([stream[4], stream[5]]));
-        if !(2..=254).contains(&length) {
-            return (out, true);
-        }
-        let Some((frame, rest)) = stream.split_at_checked(6 + length) else { break };
-        out.push(frame);
-        stream = rest;
-    }
-    (out, false)
-}
-
-/// The Modbus frames (protocol id 0) of a stream: those a server answers.
-pub fn modbus_frames(stream: &[u8]) -> Vec<&[u8]> {
-    oracle_frames(stream).0.into_iter().filter(|frame| frame[2..4] == [0, 0]).collect()
-}
-
-/// Reads whole reply frames until the stream ends (end, reset, or nothing
-/// for `wait`).
+/// Reads until the stream ends (end, reset, or nothing for `wait`) and
+/// splits what came into whole reply frames (test-support's reference
+/// framer: a partial frame at the end fails the test).
 pub async fn read_frames_until_close<R: AsyncRead + Unpin>(reader: &mut R, wait: Duration) -> Vec<Vec<u8>> {
-    let mut frames = Vec::new();
     let mut bytes = Vec::new();
     let mut buf = [0u8; 4096];
     loop {
@@ -194,16 +174,8 @@ pub async fn read_frames_until_close<R: AsyncRead + Unpin>(reader: &mut R, wait:
             Ok(Ok(n)) if n > 0 => bytes.extend_from_slice(&buf[..n]),
             _ => break,
         }
-        while bytes.len() >= 6 {
-            let len = 6 + usize::from(u16::from_be_bytes([bytes[4], bytes[5]]));
-            if bytes.len() < len {
-                break;
-            }
-            frames.push(bytes.drain(..len).collect());
-        }
     }
-    assert!(bytes.is_empty(), "the reply stream ends with a partial frame: {bytes:02x?}");
-    frames
+    split_replies(&bytes)
 }
 
 /// A small deterministic generator (SplitMix64): the same seed, the same test.
@@ -321,12 +293,8 @@ impl Rng {
         let pdu = self.pdu();
         let protocol = if self.chance(90) { 0 } else { self.u16() };
         let unit = if self.chance(75) { 1 } else { self.u8() };
-        let mut frame = self.u16().to_be_bytes().to_vec();
-        frame.extend(protocol.to_be_bytes());
-        frame.extend(((pdu.len() + 1) as u16).to_be_bytes());
-        frame.push(unit);
-        frame.extend(pdu);
-        frame
+        let transaction = self.u16();
+        adu(transaction, protocol, unit, &pdu)
     }
 
     /// A client's byte stream: mostly requests, some junk, now and then a

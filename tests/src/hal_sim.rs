@@ -18,6 +18,8 @@ use std::process::{Child, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
+use test_support::framer;
+use tokio::io::{AsyncRead, AsyncReadExt};
 use tokio_modbus::client::Context;
 
 use crate::netns::{DEVICE_IP, Namespace, TAP};
@@ -191,31 +193,18 @@ impl Drop for HalSim {
     }
 }
 
-/// An MBAP frame: transaction id, protocol id, the length field (unit id +
-/// PDU), unit id, PDU.
-pub fn frame(transaction: u16, protocol: u16, unit: u8, pdu: &[u8]) -> Vec<u8> {
-    let mut out = Vec::with_capacity(7 + pdu.len());
-    out.extend_from_slice(&transaction.to_be_bytes());
-    out.extend_from_slice(&protocol.to_be_bytes());
-    out.extend_from_slice(&(pdu.len() as u16 + 1).to_be_bytes());
-    out.push(unit);
-    out.extend_from_slice(pdu);
-    out
-}
-
-/// Reads one whole reply frame (by its length field) within `wait`; `None`
-/// if nothing complete arrived, or the connection closed.
-pub async fn read_frame(stream: &mut tokio::net::TcpStream, wait: Duration) -> Option<Vec<u8>> {
-    use tokio::io::AsyncReadExt;
+/// Reads one whole reply frame within `wait`, as long as its length field
+/// says (which must be one a reply may carry: test-support's reference
+/// framer); `None` if nothing complete arrived, or the connection closed.
+pub async fn read_frame<R: AsyncRead + Unpin>(stream: &mut R, wait: Duration) -> Option<Vec<u8>> {
     let read = async {
-        let mut header = [0u8; 7];
-        stream.read_exact(&mut header).await.ok()?;
-        let len = usize::from(u16::from_be_bytes([header[4], header[5]]));
-        let mut rest = vec![0u8; len.saturating_sub(1)];
-        stream.read_exact(&mut rest).await.ok()?;
-        let mut whole = header.to_vec();
-        whole.extend_from_slice(&rest);
-        Some(whole)
+        let mut frame = vec![0u8; framer::LENGTH_END];
+        stream.read_exact(&mut frame).await.ok()?;
+        let length = framer::length_field(&frame)?;
+        assert!(framer::REPLY_LENGTH_RANGE.contains(&length), "a reply with length field {length}: {frame:02x?}");
+        frame.resize(framer::LENGTH_END + usize::from(length), 0);
+        stream.read_exact(&mut frame[framer::LENGTH_END..]).await.ok()?;
+        Some(frame)
     };
     tokio::time::timeout(wait, read).await.ok().flatten()
 }
@@ -223,7 +212,6 @@ pub async fn read_frame(stream: &mut tokio::net::TcpStream, wait: Duration) -> O
 /// Whether the server closed `stream` within `wait` (end of stream or reset,
 /// with no bytes before it).
 pub async fn closed_within(stream: &mut tokio::net::TcpStream, wait: Duration) -> bool {
-    use tokio::io::AsyncReadExt;
     let mut byte = [0u8; 1];
     matches!(tokio::time::timeout(wait, stream.read(&mut byte)).await, Ok(Ok(0) | Err(_)))
 }

@@ -11,8 +11,9 @@
 
 use std::time::Duration;
 
-use system_tests::abuse::{Ledger, Rng, modbus_frames, oracle_frames, read_frames_until_close};
-use system_tests::hal_sim::{HalSim, firmware_version, frame, read_frame};
+use system_tests::abuse::{Ledger, Rng, read_frames_until_close};
+use system_tests::hal_sim::{HalSim, firmware_version, read_frame};
+use test_support::framer::{self, adu};
 use tokio::io::AsyncWriteExt;
 use tokio_modbus::prelude::*;
 
@@ -26,7 +27,7 @@ const ARGS: [&str; 2] = ["--robot", "idle"];
 fn write_register(transaction: u16, address: u16, value: u16) -> Vec<u8> {
     let [a, b] = address.to_be_bytes();
     let [c, d] = value.to_be_bytes();
-    frame(transaction, 0, 1, &[0x06, a, b, c, d])
+    adu(transaction, 0, 1, &[0x06, a, b, c, d])
 }
 
 /// An FC 10 frame: registers `start..` := `values` (unit 1).
@@ -36,14 +37,14 @@ fn write_registers(transaction: u16, start: u16, values: &[u16]) -> Vec<u8> {
     pdu.extend((values.len() as u16).to_be_bytes());
     pdu.push(2 * values.len() as u8);
     pdu.extend(values.iter().flat_map(|v| v.to_be_bytes()));
-    frame(transaction, 0, 1, &pdu)
+    adu(transaction, 0, 1, &pdu)
 }
 
 /// An FC 03 frame: read `quantity` registers from `start` (unit 1).
 fn read_registers(transaction: u16, start: u16, quantity: u16) -> Vec<u8> {
     let [a, b] = start.to_be_bytes();
     let [c, d] = quantity.to_be_bytes();
-    frame(transaction, 0, 1, &[0x03, a, b, c, d])
+    adu(transaction, 0, 1, &[0x03, a, b, c, d])
 }
 
 /// After the abuse: hal-sim runs, a fresh client is answered and the map
@@ -204,7 +205,7 @@ fn pipelined_bursts_larger_than_the_socket_buffers_are_answered_in_order() {
                 tokio::time::sleep(Duration::from_millis(300)).await;
                 let mut replies = Vec::new();
                 for i in 0..requests.len() {
-                    let reply = read_frame_half(&mut reader).await.unwrap_or_else(|| panic!("reply {i}"));
+                    let reply = read_frame(&mut reader, REPLY_WAIT).await.unwrap_or_else(|| panic!("reply {i}"));
                     replies.push(reply);
                 }
                 replies
@@ -223,21 +224,6 @@ fn pipelined_bursts_larger_than_the_socket_buffers_are_answered_in_order() {
         ledger
     });
     finish(&mut sim, &ledger);
-}
-
-/// One reply frame from a read half.
-async fn read_frame_half(reader: &mut tokio::net::tcp::OwnedReadHalf) -> Option<Vec<u8>> {
-    use tokio::io::AsyncReadExt;
-    let read = async {
-        let mut header = [0u8; 7];
-        reader.read_exact(&mut header).await.ok()?;
-        let len = usize::from(u16::from_be_bytes([header[4], header[5]]));
-        let mut whole = header.to_vec();
-        whole.resize(6 + len, 0);
-        reader.read_exact(&mut whole[7..]).await.ok()?;
-        Some(whole)
-    };
-    tokio::time::timeout(REPLY_WAIT, read).await.ok().flatten()
 }
 
 #[test]
@@ -284,7 +270,8 @@ fn random_byte_streams_are_answered_or_closed_and_change_only_acknowledged_point
                 let _ = writer.shutdown().await;
             };
             let (_, replies) = tokio::join!(write, read_frames_until_close(&mut reader, REPLY_WAIT));
-            let requests = modbus_frames(&stream);
+            let framed = framer::split(&stream);
+            let requests = framed.requests();
             assert_eq!(
                 replies.len(),
                 requests.len(),
@@ -293,10 +280,9 @@ fn random_byte_streams_are_answered_or_closed_and_change_only_acknowledged_point
             for (request, reply) in requests.iter().zip(&replies) {
                 ledger.record(request, reply);
             }
-            let (frames, lost) = oracle_frames(&stream);
             expected.requests += requests.len();
-            expected.bad_protocol += frames.len() - requests.len();
-            expected.bad_length += usize::from(lost);
+            expected.bad_protocol += framed.skipped();
+            expected.bad_length += usize::from(framed.bad_length.is_some());
         }
         eprintln!("random streams: {} writes acknowledged", ledger.acknowledged());
         assert!(ledger.acknowledged() > 40, "the streams exercised writes");
@@ -373,16 +359,15 @@ fn clients_that_reset_mid_request_change_nothing_unacknowledged() {
 
 #[test]
 fn random_stream_helpers_frame_as_the_specification_says() {
-    // Not a hal-sim test: the generator and oracle the random test relies on.
+    // Not a hal-sim test: the generator the random test relies on frames
+    // as the reference framer (test-support, tested there) says.
     let mut rng = Rng::new(1);
     // A PDU too long for one ADU gets a length field out of range: keep the others.
     let requests: Vec<Vec<u8>> = (0..80).map(|_| rng.request()).filter(|r| r.len() <= 260).collect();
     let stream = requests.concat();
-    let frames = system_tests::abuse::oracle_frames(&stream);
-    assert_eq!(frames.0, requests);
-    assert!(!frames.1);
-    assert!(system_tests::abuse::oracle_frames(&[0, 1, 0, 0, 0, 1, 7]).1, "length 1 is lost");
-    assert_eq!(system_tests::abuse::oracle_frames(&[0, 1, 0, 0, 0, 6, 1, 3]).0.len(), 0, "a frame cut short");
+    let framed = framer::split(&stream);
+    assert_eq!(framed.frames, requests);
+    assert_eq!((framed.bad_length, framed.rest), (None, &[][..]));
     let lengths: Vec<usize> = (0..200).map(|_| rng.pdu().len()).collect();
     assert!(lengths.iter().any(|&l| l > 100), "some multiple writes are long");
 }

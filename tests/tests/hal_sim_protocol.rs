@@ -5,7 +5,8 @@
 
 use std::time::Duration;
 
-use system_tests::hal_sim::{HalSim, firmware_version, frame, read_frame};
+use system_tests::hal_sim::{HalSim, firmware_version, read_frame};
+use test_support::framer::adu;
 use tokio::io::AsyncWriteExt;
 use tokio_modbus::prelude::*;
 
@@ -67,7 +68,7 @@ fn every_exception() {
         assert_eq!(ctx.write_multiple_coils(0, &[false; 1969]).await.unwrap(), Err(IllegalDataValue));
         // tokio-modbus only sends 0xFF00 and 0x0000 for a coil: the odd value goes raw.
         let mut raw = sim.raw().await;
-        raw.write_all(&frame(0x0505, 0, 1, &[0x05, 0x00, 0x10, 0x12, 0x34])).await.unwrap();
+        raw.write_all(&adu(0x0505, 0, 1, &[0x05, 0x00, 0x10, 0x12, 0x34])).await.unwrap();
         let reply = read_frame(&mut raw, Duration::from_secs(2)).await;
         assert_eq!(reply.as_deref(), Some(&[0x05, 0x05, 0, 0, 0, 3, 1, 0x85, 0x03][..]));
         assert_eq!(ctx.read_coils(16, 1).await.unwrap().unwrap(), [false], "a refused coil write changes nothing");

@@ -6,6 +6,7 @@ use std::collections::HashMap;
 use std::time::Duration;
 
 use system_tests::hal_sim::{HalSim, closed_within};
+use test_support::framer::adu;
 use tokio::io::AsyncWriteExt;
 use tokio_modbus::prelude::*;
 
@@ -60,7 +61,7 @@ fn clients_outside_the_connect_allow_list_are_refused_at_once() {
         // may even beat the client's connect() to completion.
         match tokio::net::TcpStream::connect(sim.addr()).await {
             Ok(mut stream) => {
-                let _ = stream.write_all(&system_tests::hal_sim::frame(1, 0, 1, &[0x03, 0x00, 0x80, 0x00, 0x01])).await;
+                let _ = stream.write_all(&adu(1, 0, 1, &[0x03, 0x00, 0x80, 0x00, 0x01])).await;
                 assert!(
                     closed_within(&mut stream, Duration::from_secs(2)).await,
                     "the connection is closed, unanswered"
@@ -108,7 +109,7 @@ fn the_control_socket_reports_the_diagnostics_counters() {
         assert_eq!(ctx.write_single_register(17, 2).await.unwrap(), Err(ExceptionCode::IllegalDataValue));
         // A bad protocol id, then a bad length on a raw connection (evicting the first).
         let mut raw = sim.raw().await;
-        raw.write_all(&system_tests::hal_sim::frame(9, 7, 1, &[0x03, 0, 0, 0, 1])).await.unwrap();
+        raw.write_all(&adu(9, 7, 1, &[0x03, 0, 0, 0, 1])).await.unwrap();
         raw.write_all(&[0, 1, 0, 0, 0x01, 0x00]).await.unwrap();
         assert!(closed_within(&mut raw, Duration::from_secs(2)).await);
     });

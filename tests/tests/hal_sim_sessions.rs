@@ -6,7 +6,8 @@
 
 use std::time::Duration;
 
-use system_tests::hal_sim::{HalSim, closed_within, frame, read_frame};
+use system_tests::hal_sim::{HalSim, closed_within, read_frame};
+use test_support::framer::adu;
 use tokio::io::AsyncWriteExt;
 use tokio_modbus::prelude::*;
 
@@ -97,7 +98,7 @@ fn a_frame_that_stops_halfway_times_out() {
     let sim = HalSim::start(&["--robot", "idle", "--idle-timeout", "0"]);
     sim.run(|| async {
         let mut raw = sim.raw().await;
-        let request = frame(1, 0, 1, &[0x03, 0x00, 0x80, 0x00, 0x01]);
+        let request = adu(1, 0, 1, &[0x03, 0x00, 0x80, 0x00, 0x01]);
         raw.write_all(&request[..5]).await.unwrap();
         // The frame timeout is 2 s; without idle timeout only it can close this.
         assert!(closed_within(&mut raw, Duration::from_secs(4)).await, "a half frame is not waited for forever");
@@ -112,11 +113,11 @@ fn pipelined_requests_in_one_segment_are_answered_in_order() {
     sim.run(|| async {
         let mut raw = sim.raw().await;
         let mut segment = Vec::new();
-        segment.extend(frame(0x0101, 0, 1, &[0x06, 0x00, 0x80, 0xbe, 0xef])); // write 128
-        segment.extend(frame(0x0102, 0, 1, &[0x03, 0x00, 0x80, 0x00, 0x01])); // read 128
-        segment.extend(frame(0x0103, 0, 1, &[0x41])); // unknown function
-        segment.extend(frame(0x0104, 0, 1, &[0x10, 0x00, 0x81, 0x00, 0x02, 0x04, 0x00, 0x01, 0x00, 0x02])); // write 129-130
-        segment.extend(frame(0x0105, 0, 7, &[0x01, 0x00, 0x10, 0x00, 0x08])); // read coils 16-23
+        segment.extend(adu(0x0101, 0, 1, &[0x06, 0x00, 0x80, 0xbe, 0xef])); // write 128
+        segment.extend(adu(0x0102, 0, 1, &[0x03, 0x00, 0x80, 0x00, 0x01])); // read 128
+        segment.extend(adu(0x0103, 0, 1, &[0x41])); // unknown function
+        segment.extend(adu(0x0104, 0, 1, &[0x10, 0x00, 0x81, 0x00, 0x02, 0x04, 0x00, 0x01, 0x00, 0x02])); // write 129-130
+        segment.extend(adu(0x0105, 0, 7, &[0x01, 0x00, 0x10, 0x00, 0x08])); // read coils 16-23
         raw.write_all(&segment).await.unwrap();
         let expected: [&[u8]; 5] = [
             &[0x01, 0x01, 0, 0, 0, 6, 1, 0x06, 0x00, 0x80, 0xbe, 0xef],
@@ -131,7 +132,7 @@ fn pipelined_requests_in_one_segment_are_answered_in_order() {
         let mut ctx = sim.connect().await;
         assert_eq!(ctx.read_holding_registers(128, 3).await.unwrap().unwrap(), [0xbeef, 1, 2]);
         // The raw connection is still served.
-        raw.write_all(&frame(9, 0, 1, &[0x03, 0x00, 0x82, 0x00, 0x01])).await.unwrap();
+        raw.write_all(&adu(9, 0, 1, &[0x03, 0x00, 0x82, 0x00, 0x01])).await.unwrap();
         assert_eq!(read_frame(&mut raw, REPLY_WAIT).await.unwrap(), [0, 9, 0, 0, 0, 5, 1, 0x03, 0x02, 0x00, 0x02]);
     });
 }
@@ -141,7 +142,7 @@ fn a_request_sent_one_byte_at_a_time_is_answered() {
     let sim = HalSim::start(&["--robot", "idle"]);
     sim.run(|| async {
         let mut raw = sim.raw().await;
-        let request = frame(0x4242, 0, 1, &[0x10, 0x00, 0x90, 0x00, 0x02, 0x04, 0x12, 0x34, 0x56, 0x78]);
+        let request = adu(0x4242, 0, 1, &[0x10, 0x00, 0x90, 0x00, 0x02, 0x04, 0x12, 0x34, 0x56, 0x78]);
         for byte in &request {
             raw.write_all(std::slice::from_ref(byte)).await.unwrap();
             raw.flush().await.unwrap();
@@ -160,11 +161,11 @@ fn a_bad_protocol_id_is_discarded_and_the_connection_carries_on() {
     sim.run(|| async {
         let mut raw = sim.raw().await;
         // Not Modbus: a write that must not happen, and no reply.
-        raw.write_all(&frame(1, 0x0001, 1, &[0x06, 0x00, 0x80, 0x00, 0x63])).await.unwrap();
+        raw.write_all(&adu(1, 0x0001, 1, &[0x06, 0x00, 0x80, 0x00, 0x63])).await.unwrap();
         assert_eq!(read_frame(&mut raw, Duration::from_millis(500)).await, None, "no reply to protocol id 1");
-        raw.write_all(&frame(2, 0xffff, 1, &[0x03, 0x00, 0x80, 0x00, 0x01])).await.unwrap();
+        raw.write_all(&adu(2, 0xffff, 1, &[0x03, 0x00, 0x80, 0x00, 0x01])).await.unwrap();
         // The next Modbus frame on the same connection is answered.
-        raw.write_all(&frame(3, 0, 1, &[0x03, 0x00, 0x80, 0x00, 0x01])).await.unwrap();
+        raw.write_all(&adu(3, 0, 1, &[0x03, 0x00, 0x80, 0x00, 0x01])).await.unwrap();
         assert_eq!(read_frame(&mut raw, REPLY_WAIT).await.unwrap(), [0, 3, 0, 0, 0, 5, 1, 0x03, 0x02, 0x00, 0x00]);
         let mut ctx = sim.connect().await;
         assert_eq!(ctx.read_holding_registers(128, 1).await.unwrap().unwrap(), [0], "the discarded write did nothing");

@@ -209,7 +209,7 @@ pub const fn safety_stop(state: RobotState) -> SafetyStop {
 
 /// The simulated controller. Call [`Robot::status`] and [`Robot::telemetry`]
 /// periodically, and [`SimRobot::event`] when something happens; then push
-/// the returned status at once (`Shared::set_robot_status`).
+/// the returned status at once (`adapter::device::Device::set_robot_status`).
 #[derive(Clone, Debug)]
 pub struct SimRobot {
     mode: Mode,

@@ -6,7 +6,8 @@ use embassy_time::Duration;
 use super::*;
 use crate::io::{AnalogType, NoRobot, RobotState, RobotStatus};
 use crate::map::WritePolicy;
-use crate::server::testing::{Clock, RecordingPins, adu};
+use crate::server::testing::{Clock, RecordingPins};
+use test_support::framer::adu;
 
 fn shared_with(watchdog: Watchdog) -> (&'static Device<'static>, &'static RecordingPins) {
     let pins: &'static RecordingPins = Box::leak(Box::default());
@@ -15,7 +16,7 @@ fn shared_with(watchdog: Watchdog) -> (&'static Device<'static>, &'static Record
 
 fn ask(shared: &Device<'_>, pdu: &[u8]) -> Vec<u8> {
     let mut reply = [0u8; MAX_ADU_LEN];
-    match shared.respond(&adu(1, 1, pdu), &mut reply, &Policy::default()) {
+    match shared.respond(&adu(1, 0, 1, pdu), &mut reply, &Policy::default()) {
         Outcome::Reply { len, .. } => reply[7..len].to_vec(),
         Outcome::Discard { .. } => Vec::new(),
     }
@@ -32,8 +33,7 @@ fn counters_follow_what_the_server_sees() {
     ask(shared, &[0x2b, 0x0e, 0x01, 0x00]); // unknown here: 01
     ask(shared, &[0x03, 0x01, 0xb4, 0x00, 0x01]); // register 436: 02
     ask(shared, &[0x05, 0x00, 0x10, 0x12, 0x34]); // bad coil value: 03
-    let mut foreign = adu(1, 1, &READ_128);
-    foreign[3] = 1;
+    let foreign = adu(1, 1, 1, &READ_128);
     assert_eq!(
         shared.respond(&foreign, &mut [0; MAX_ADU_LEN], &Policy::default()),
         Outcome::Discard { protocol_id: 1 }

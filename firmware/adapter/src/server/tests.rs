@@ -4,7 +4,10 @@ use core::pin::pin;
 
 use embassy_time::Duration;
 
-use super::testing::{Clock, RecordingPins, Wire, adu, frames, poll_once, server_with};
+use test_support::duplex::{Wire, poll_once};
+use test_support::framer::{adu, split_replies};
+
+use super::testing::{Clock, RecordingPins, server_with};
 use super::*;
 
 const WRITE_COIL_16_ON: [u8; 5] = [0x05, 0x00, 0x10, 0xff, 0x00];
@@ -28,11 +31,11 @@ fn a_read_only_client_may_read_and_its_writes_get_exception_01() {
         &[0x10, 0x00, 0x80, 0x00, 0x01, 0x02, 0x00, 0x01],
     ];
     for pdu in writes {
-        wire.send(&adu(7, 1, pdu));
+        wire.send(&adu(7, 0, 1, pdu));
     }
-    wire.send(&adu(8, 1, &READ_128));
+    wire.send(&adu(8, 0, 1, &READ_128));
     assert!(poll_once(session.as_mut()).is_pending());
-    let replies = frames(&wire.take_replies());
+    let replies = split_replies(&wire.take_replies());
     for (reply, pdu) in replies.iter().zip(writes) {
         assert_eq!(reply[7..], [pdu[0] | 0x80, 0x01]);
     }
@@ -51,9 +54,9 @@ fn a_server_wide_read_only_policy_holds_whatever_the_slot_says() {
     shared.slots().open(0, 8, embassy_time::Instant::now(), false);
     let (wire, mut end) = Wire::new();
     let mut session = pin!(serve(&mut end, shared, 0));
-    wire.send(&adu(1, 1, &WRITE_COIL_16_ON));
+    wire.send(&adu(1, 0, 1, &WRITE_COIL_16_ON));
     assert!(poll_once(session.as_mut()).is_pending());
-    assert_eq!(frames(&wire.take_replies())[0][7..], [0x85, 0x01]);
+    assert_eq!(split_replies(&wire.take_replies())[0][7..], [0x85, 0x01]);
 }
 
 #[test]
@@ -79,12 +82,12 @@ fn a_new_configuration_applies_to_the_next_request() {
     let (shared, _) = shared_with(Config::DEFAULT);
     let (wire, mut end) = Wire::new();
     let mut session = pin!(serve(&mut end, shared, 0));
-    wire.send(&adu(1, 9, &READ_128));
+    wire.send(&adu(1, 0, 9, &READ_128));
     assert!(poll_once(session.as_mut()).is_pending());
     shared.set_config(Config { policy: Policy { unit_id: Some(7), ..Policy::default() }, ..Config::DEFAULT });
-    wire.send(&adu(2, 9, &READ_128));
+    wire.send(&adu(2, 0, 9, &READ_128));
     assert!(poll_once(session.as_mut()).is_pending());
-    let replies = frames(&wire.take_replies());
+    let replies = split_replies(&wire.take_replies());
     assert_eq!(replies[0][7..], [0x03, 0x02, 0x00, 0x00]);
     assert_eq!(replies[1][7..], [0x83, 0x0b], "unit 9 is no longer answered");
 }

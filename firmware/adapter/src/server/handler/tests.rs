@@ -2,8 +2,8 @@
 
 use super::*;
 use crate::map::table::reg;
-use crate::server::testing::adu;
 use test_support::fixtures::PYMODBUS;
+use test_support::framer::adu;
 
 fn answer(image: &mut Image, policy: &Policy, frame: &[u8]) -> Outcome {
     let mut reply = [0xa5u8; MAX_ADU_LEN];
@@ -12,7 +12,7 @@ fn answer(image: &mut Image, policy: &Policy, frame: &[u8]) -> Outcome {
 
 /// The reply to `pdu` sent as unit 1, transaction 0x1234, with its header checked.
 fn reply_pdu(image: &mut Image, policy: &Policy, unit: u8, pdu: &[u8]) -> Vec<u8> {
-    let frame = adu(0x1234, unit, pdu);
+    let frame = adu(0x1234, 0, unit, pdu);
     let mut reply = [0xa5u8; MAX_ADU_LEN];
     let Outcome::Reply { len, .. } = respond(&frame, &mut reply, image, policy) else { panic!("no reply") };
     assert_eq!(&reply[..4], &[0x12, 0x34, 0x00, 0x00], "transaction id echoed, protocol 0");
@@ -165,7 +165,7 @@ fn unit_ids() {
 #[test]
 fn a_foreign_protocol_id_gets_no_reply() {
     let mut image = Image::new();
-    let mut frame = adu(1, 1, &[0x06, 0x00, 0x80, 0x00, 0x01]);
+    let mut frame = adu(1, 0, 1, &[0x06, 0x00, 0x80, 0x00, 0x01]);
     for protocol in [1u16, 0x0100, 0xffff] {
         frame[2..4].copy_from_slice(&protocol.to_be_bytes());
         assert_eq!(answer(&mut image, &seed(), &frame), Outcome::Discard { protocol_id: protocol });
@@ -176,11 +176,11 @@ fn a_foreign_protocol_id_gets_no_reply() {
 #[test]
 fn outcomes_report_exceptions_and_output_writes() {
     let mut image = Image::new();
-    let outcome = answer(&mut image, &seed(), &adu(1, 1, &[0x05, 0x00, 0x10, 0xff, 0x00]));
+    let outcome = answer(&mut image, &seed(), &adu(1, 0, 1, &[0x05, 0x00, 0x10, 0xff, 0x00]));
     assert!(matches!(outcome, Outcome::Reply { written: Written { outputs: true }, exception: None, .. }));
-    let outcome = answer(&mut image, &seed(), &adu(1, 1, &[0x06, 0x00, 0x80, 0x00, 0x01]));
+    let outcome = answer(&mut image, &seed(), &adu(1, 0, 1, &[0x06, 0x00, 0x80, 0x00, 0x01]));
     assert!(matches!(outcome, Outcome::Reply { written: Written { outputs: false }, exception: None, .. }));
-    let outcome = answer(&mut image, &seed(), &adu(1, 1, &[0x06, 0x00, 0x02, 0x00, 0x01]));
+    let outcome = answer(&mut image, &seed(), &adu(1, 0, 1, &[0x06, 0x00, 0x02, 0x00, 0x01]));
     assert!(matches!(outcome, Outcome::Reply { exception: Some(Exception::IllegalDataAddress), len: 9, .. }));
 }
 

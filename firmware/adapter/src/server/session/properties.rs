@@ -9,35 +9,25 @@
 //! - the map changes only through acknowledged writes: replaying just those
 //!   on a fresh map gives the session's map.
 //!
-//! Framing is checked against the few lines of `oracle_frames` below, not
-//! against the library's own framer.
+//! Framing and replies are checked against test-support's reference framer
+//! (`test_support::framer`, `test_support::reply`), written from the
+//! specification, not against the library's own framer.
 
 use core::pin::pin;
 use core::task::Poll;
 
 use proptest::prelude::*;
 
+use test_support::duplex::{Wire, poll_once};
+use test_support::framer::{self, adu, split_replies};
+use test_support::reply::{Answer, Refusals, check_reply};
+
 use super::{Error, serve};
 use crate::device::Device;
 use crate::map::WritePolicy;
 use crate::modbus::mbap::MAX_ADU_LEN;
-use crate::server::testing::{Clock, Wire, frames, poll_once, server_with};
+use crate::server::testing::{Clock, server_with};
 use crate::server::{Config, Outcome, Policy, Server, Watchdog};
-
-/// MBAP framing from the Implementation Guide: 6 bytes, then `length` more.
-fn oracle_frames(mut stream: &[u8]) -> (Vec<&[u8]>, bool) {
-    let mut out = Vec::new();
-    while stream.len() >= 6 {
-        let length = usize::from(u16::from_be_bytes([stream[4], stream[5]]));
-        if !(2..=254).contains(&length) {
-            return (out, true);
-        }
-        let Some(frame) = stream.get(..6 + length) else { break };
-        out.push(frame);
-        stream = &stream[6 + length..];
-    }
-    (out, false)
-}
 
 fn address() -> impl Strategy<Value = u16> {
     prop_oneof![4 => 0u16..440, 1 => any::<u16>()]
@@ -84,14 +74,7 @@ fn request() -> impl Strategy<Value = Vec<u8>> {
         prop_oneof![3 => Just(1u8), 1 => any::<u8>()],
         pdu(),
     )
-        .prop_map(|(transaction, protocol, unit, pdu)| {
-            let mut frame = transaction.to_be_bytes().to_vec();
-            frame.extend(protocol.to_be_bytes());
-            frame.extend(((pdu.len() + 1) as u16).to_be_bytes());
-            frame.push(unit);
-            frame.extend(pdu);
-            frame
-        })
+        .prop_map(|(transaction, protocol, unit, pdu)| adu(transaction, protocol, unit, &pdu))
 }
 
 fn stream() -> impl Strategy<Value = Vec<u8>> {
@@ -117,38 +100,9 @@ fn shared(policy: Policy) -> &'static Server<'static, Device<'static>> {
     server_with(config, Watchdog::OFF).0
 }
 
-/// Checks `reply` against `request`; returns whether it acknowledged a write.
-fn check_reply(request: &[u8], reply: &[u8], policy: &Policy) -> Result<bool, TestCaseError> {
-    prop_assert_eq!(&reply[..2], &request[..2], "transaction id");
-    prop_assert_eq!(&reply[2..4], &[0, 0], "protocol id");
-    prop_assert_eq!(reply[6], request[6], "unit id");
-    let (function, pdu) = (request[7], &request[7..]);
-    let answer = &reply[7..];
-    let known = [0x01, 0x03, 0x05, 0x06, 0x0f, 0x10].contains(&function);
-    let other_unit = policy.unit_id.is_some_and(|id| ![id, 0, 0xff].contains(&request[6]));
-    let refused_write = policy.read_only && [0x05, 0x06, 0x0f, 0x10].contains(&function);
-    if answer[0] == function | 0x80 && answer.len() == 2 {
-        let allowed: &[u8] = match (other_unit, known, refused_write) {
-            (true, _, _) => &[0x0b],
-            (false, false, _) | (false, true, true) => &[0x01],
-            (false, true, false) => &[0x02, 0x03],
-        };
-        prop_assert!(allowed.contains(&answer[1]), "exception {:#04x} to {:02x?}", answer[1], pdu);
-        return Ok(false);
-    }
-    prop_assert!(known && !other_unit && !refused_write, "a normal reply to {:02x?}", pdu);
-    prop_assert_eq!(answer[0], function);
-    let quantity = usize::from(u16::from_be_bytes([pdu[3], pdu[4]]));
-    match function {
-        0x01 => prop_assert_eq!(&answer[1..2], &[quantity.div_ceil(8) as u8], "coil byte count"),
-        0x03 => prop_assert_eq!(&answer[1..2], &[(2 * quantity) as u8], "register byte count"),
-        0x05 | 0x06 => prop_assert_eq!(answer, pdu, "single writes echo"),
-        _ => prop_assert_eq!(answer, &pdu[..5], "multiple writes echo start and quantity"),
-    }
-    if matches!(function, 0x01 | 0x03) {
-        prop_assert_eq!(answer.len(), 2 + usize::from(answer[1]));
-    }
-    Ok(!matches!(function, 0x01 | 0x03))
+/// What `policy` refuses, in the reference's terms.
+fn refusals(policy: &Policy) -> Refusals {
+    Refusals { unit_id: policy.unit_id, read_only: policy.read_only }
 }
 
 proptest! {
@@ -163,7 +117,7 @@ proptest! {
         let _clock = Clock::take();
         let server = shared(policy);
         let (wire, mut end) = Wire::new();
-        wire.segment(segment);
+        wire.read_sizes([segment]);
         wire.send(&bytes);
         wire.close();
         let result = {
@@ -174,20 +128,20 @@ proptest! {
             }
         };
 
-        let (requests, lost) = oracle_frames(&bytes);
+        let framed = framer::split(&bytes);
         match result {
-            Ok(()) => prop_assert!(!lost),
-            Err(Error::BadLength(_)) => prop_assert!(lost),
+            Ok(()) => prop_assert_eq!(framed.bad_length, None, "a clean end on a lost stream"),
+            Err(Error::BadLength(length)) => prop_assert_eq!(framed.bad_length, Some(length)),
             Err(other) => return Err(TestCaseError::fail(format!("session ended with {other:?}"))),
         }
-        let modbus: Vec<&[u8]> = requests.into_iter().filter(|r| r[2..4] == [0, 0]).collect();
-        let replies = frames(&wire.take_replies());
-        prop_assert_eq!(replies.len(), modbus.len(), "one reply per Modbus frame, none for others");
+        let requests = framed.requests();
+        let replies = split_replies(&wire.take_replies());
+        prop_assert_eq!(replies.len(), requests.len(), "one reply per Modbus frame, none for others");
 
         let model = shared(policy);
         let mut scratch = [0u8; MAX_ADU_LEN];
-        for (request, reply) in modbus.iter().zip(&replies) {
-            if check_reply(request, reply, &policy)? {
+        for (request, reply) in requests.iter().zip(&replies) {
+            if check_reply(request, reply, &refusals(&policy)) == Answer::Write {
                 let replayed = model.respond(request, &mut scratch);
                 let acknowledged = matches!(replayed, Outcome::Reply { exception: None, .. });
                 prop_assert!(acknowledged, "replaying an acknowledged write succeeds");

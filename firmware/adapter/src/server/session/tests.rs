@@ -8,9 +8,11 @@ use embedded_io_async::ErrorKind;
 
 use super::{Error, serve};
 use crate::device::Device;
-use crate::server::testing::{Clock, Wire, adu, frames, poll_once, server_with};
+use crate::server::testing::{Clock, server_with};
 use crate::server::{Config, Outcome, Server, Watchdog};
+use test_support::duplex::{Wire, poll_once};
 use test_support::fixtures::PYMODBUS;
+use test_support::framer::{self, adu, split_replies};
 
 const IDLE: Duration = Duration::from_secs(10);
 const FRAME: Duration = Duration::from_secs(2);
@@ -25,17 +27,16 @@ fn pipeline() -> Vec<u8> {
     PYMODBUS.iter().flat_map(|f| f.request.iter().copied()).collect()
 }
 
-/// The replies a fresh server gives to `requests`, one frame at a time.
+/// The replies a fresh server gives to `requests`, one frame at a time
+/// (framed by the reference framer, not the session's).
 fn expected(requests: &[u8]) -> Vec<Vec<u8>> {
     let oracle = shared(1, None);
     let mut reply = [0u8; crate::modbus::mbap::MAX_ADU_LEN];
-    let mut rest = requests;
     let mut out = Vec::new();
-    while let Ok(Some(len)) = crate::modbus::mbap::next_frame_len(rest) {
-        if let Outcome::Reply { len, .. } = oracle.respond(&rest[..len], &mut reply) {
+    for frame in framer::split(requests).frames {
+        if let Outcome::Reply { len, .. } = oracle.respond(frame, &mut reply) {
             out.push(reply[..len].to_vec());
         }
-        rest = &rest[len..];
     }
     out
 }
@@ -45,12 +46,12 @@ fn run(bytes: &[u8], segment: usize) -> (Result<(), Error<ErrorKind>>, Vec<Vec<u
     let _clock = Clock::take();
     let shared = shared(8, Some(IDLE));
     let (wire, mut end) = Wire::new();
-    wire.segment(segment);
+    wire.read_sizes([segment]);
     wire.send(bytes);
     wire.close();
     let mut session = pin!(serve(&mut end, shared, 0));
     let Poll::Ready(result) = poll_once(session.as_mut()) else { panic!("session waits with all input there") };
-    (result, frames(&wire.take_replies()))
+    (result, split_replies(&wire.take_replies()))
 }
 
 #[test]
@@ -86,7 +87,7 @@ fn a_request_sent_one_byte_at_a_time_is_answered_once_complete() {
         if i + 1 < request.len() {
             assert!(replies.is_empty(), "no reply after {} of {} bytes", i + 1, request.len());
         } else {
-            assert_eq!(frames(&replies), expected(request));
+            assert_eq!(split_replies(&replies), expected(request));
         }
     }
 }
@@ -96,9 +97,9 @@ fn the_largest_frames_fit() {
     // FC 10 with 123 registers: a 259-byte ADU.
     let mut pdu = vec![0x10, 0x00, 0x80, 0x00, 123, 246];
     pdu.extend((0..123u16).flat_map(|v| v.to_be_bytes()));
-    let write = adu(7, 1, &pdu);
+    let write = adu(7, 0, 1, &pdu);
     // An unknown function code with the longest PDU (253 bytes): a 260-byte ADU.
-    let unknown = adu(8, 1, &[0x64; 253]);
+    let unknown = adu(8, 0, 1, &[0x64; 253]);
     assert_eq!((write.len(), unknown.len()), (259, 260));
     let stream = [write.clone(), unknown.clone(), write].concat();
     for segment in [0, 1, 7, 100, 259] {
@@ -142,7 +143,7 @@ fn a_foreign_protocol_id_is_skipped_and_the_session_carries_on() {
     wire.send(&[0x00, 0x09, 0x00, 0x01, 0x00, 0x06, 0x01, 0x03, 0x01, 0x00, 0x00, 0x03]);
     wire.send(PYMODBUS[1].request);
     assert!(poll_once(session.as_mut()).is_pending(), "the connection stays open");
-    assert_eq!(frames(&wire.take_replies()), expected(PYMODBUS[1].request));
+    assert_eq!(split_replies(&wire.take_replies()), expected(PYMODBUS[1].request));
 }
 
 #[test]
@@ -159,7 +160,7 @@ fn an_idle_session_times_out() {
     assert!(poll_once(session.as_mut()).is_pending());
     clock.advance(Duration::from_millis(1));
     assert_eq!(poll_once(session.as_mut()), Poll::Ready(Err(Error::IdleTimeout)));
-    assert_eq!(frames(&wire.take_replies()).len(), 1);
+    assert_eq!(split_replies(&wire.take_replies()).len(), 1);
 }
 
 #[test]
@@ -202,7 +203,7 @@ fn a_frame_completed_in_time_is_answered() {
     clock.advance(FRAME - Duration::from_millis(1));
     wire.send(&request[5..]);
     assert!(poll_once(session.as_mut()).is_pending());
-    assert_eq!(frames(&wire.take_replies()), expected(request));
+    assert_eq!(split_replies(&wire.take_replies()), expected(request));
     // The frame clock restarts with the next frame.
     wire.send(&request[..3]);
     clock.advance(FRAME - Duration::from_millis(1));
