@@ -78,10 +78,10 @@ impl OutputPins for Pins {
 /// those of a fresh map.
 pub fn pins_follow_map(pins: &Pins, image: &Image) {
     let driven = *pins.last.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-    let now = Outputs::from_image(image);
+    let now = image.outputs();
     match driven {
         Some(driven) => assert_eq!(driven, now, "the pins lag the map"),
-        None => assert_eq!(now, Outputs::from_image(&Image::new()), "outputs changed without driving the pins"),
+        None => assert_eq!(now, Image::new().outputs(), "outputs changed without driving the pins"),
     }
 }
 

@@ -20,8 +20,9 @@ pub mod input;
 use core::pin::pin;
 use core::task::Poll;
 
+use adapter::device::Device;
 use adapter::map::Image;
-use adapter::server::{self, Config, Error, Outcome, Policy, Shared, handler};
+use adapter::server::{self, Config, Error, Outcome, Policy, Server, Watchdog, handler};
 use modbus::mbap::{self, MAX_ADU_LEN};
 use modbus::{Exception, Request, Response};
 use test_support::duplex::poll_once;
@@ -31,11 +32,10 @@ use test_support::reply::Answer;
 use check::Pins;
 pub use input::{HandlerInput, SessionInput};
 
-/// A server as the tests configure it: no idle timeout (the mock clock never
-/// moves, but a session must not depend on that), the policy under test.
-fn shared(policy: Policy, pins: &Pins) -> Shared<'_> {
-    let config = Config { policy, idle_timeout: None, ..Config::DEFAULT };
-    Shared::new(config, adapter::VERSION, pins)
+/// The server's configuration as the tests set it: no idle timeout (the mock
+/// clock never moves, but a session must not depend on that), the policy under test.
+fn config(policy: Policy) -> Config {
+    Config { policy, idle_timeout: None, ..Config::DEFAULT }
 }
 
 /// Bound on polls of one session: every `Pending` must come from the
@@ -47,7 +47,8 @@ pub fn session(data: &[u8]) {
     let input = SessionInput::parse(data);
     let policy = input.policy();
     let pins = Pins::default();
-    let server = shared(policy, &pins);
+    let device = Device::new(Watchdog::OFF, adapter::VERSION, &pins);
+    let server = Server::new(config(policy), &device);
     let (wire, mut end) = connection::connect(&input);
     let result = {
         let mut session = pin!(server::serve(&mut end, &server, 0));
@@ -79,7 +80,8 @@ pub fn session(data: &[u8]) {
     // the reads. At each step it holds what the session's server should
     // hold, so it must give the very same reply.
     let model_pins = Pins::default();
-    let model = shared(policy, &model_pins);
+    let model_device = Device::new(Watchdog::OFF, adapter::VERSION, &model_pins);
+    let model = Server::new(config(policy), &model_device);
     let mut expected = [0u8; MAX_ADU_LEN];
     for (request, reply) in requests.iter().zip(&replies) {
         if let Answer::Read | Answer::Write = check::reply(request, reply, &policy) {
@@ -89,7 +91,7 @@ pub fn session(data: &[u8]) {
             assert_eq!(&expected[..len], reply, "the model answers {request:02x?} otherwise");
         } else {
             // Refused: the same refusal from the model, and nothing changed.
-            let before = model.read(Clone::clone);
+            let before = model_device.read(Clone::clone);
             let mut copy = before.clone();
             let outcome = handler::respond(request, &mut expected, &mut copy, &policy);
             let Outcome::Reply { len, .. } = outcome else { panic!("the handler discarded {request:02x?}") };
@@ -97,8 +99,8 @@ pub fn session(data: &[u8]) {
             assert_eq!(copy, before, "a refused request {request:02x?} changed the map");
         }
     }
-    let image = server.read(Clone::clone);
-    assert!(image == model.read(Clone::clone), "the map holds exactly the acknowledged writes");
+    let image = device.read(Clone::clone);
+    assert!(image == model_device.read(Clone::clone), "the map holds exactly the acknowledged writes");
     check::pins_follow_map(&pins, &image);
     let lost = framed.bad_length.is_some();
     let expected = check::expected_counters(&requests, &replies, framed.skipped(), lost, &policy);
@@ -111,7 +113,7 @@ pub fn handler(data: &[u8]) {
     let input = HandlerInput::parse(data);
     let policy = input.policy();
     let mut image = Image::new();
-    adapter::VERSION.apply(&mut image);
+    image.set_version(&adapter::VERSION);
     let mut reply = [0xa5u8; MAX_ADU_LEN];
     for frame in input.frames() {
         let before = image.clone();
