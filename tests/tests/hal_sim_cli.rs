@@ -24,7 +24,7 @@ fn bad_arguments_are_refused_with_a_reason() {
         (&["--tap"][..], "needs a value"),
         (&["--tap", TAP, "--port", "0"][..], "`--port` must be 1-65535"),
         (&["--tap", TAP, "--port", "502x"][..], "not `502x`"),
-        (&["--tap", TAP, "--ip", "198.18.0.999/24"][..], "not an IPv4 address"),
+        (&["--tap", TAP, "--ip", "198.18.0.999/24"][..], "`--ip` must be none, or an IPv4 address"),
         (&["--tap", TAP, "--max-connections", "100"][..], "MODBUS_MAX_CONNECTIONS"),
         (&["--tap", TAP, "--write-policy", "loose"][..], "seed or strict"),
         (&["--tap", TAP, "--robot", "fast"][..], "demo or idle"),

@@ -327,7 +327,9 @@ pub static COILS: [CoilRow; 11] = [
 pub(crate) fn rows_in<T>(rows: &[T], first: u16, last: u16, bounds: impl Fn(&T) -> (u16, u16)) -> &[T] {
     let from = rows.partition_point(|row| bounds(row).1 < first);
     let to = rows.partition_point(|row| bounds(row).0 <= last);
-    rows.get(from..to).unwrap_or(&[])
+    // `from <= to <= len` for a sorted table; were it not, no row covers the
+    // range and the request gets exception 02 (fail closed).
+    rows.get(from..to).unwrap_or_default()
 }
 
 /// The register row that holds `address`.

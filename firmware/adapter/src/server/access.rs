@@ -74,7 +74,9 @@ impl AllowList {
 
     /// The networks in the list.
     pub fn networks(&self) -> &[Network] {
-        self.networks.get(..self.len).unwrap_or(&[])
+        // `with` keeps len <= MAX_ALLOWED_NETWORKS; were it not, the list
+        // would allow no one (fail closed), never someone it should not.
+        self.networks.split_at_checked(self.len).map_or(&[], |(networks, _)| networks)
     }
 
     /// Whether `address` lies in one of the networks.

@@ -35,6 +35,10 @@ pub enum Error<E> {
     Evicted,
     /// The transport accepted no bytes of a reply.
     WriteZero,
+    /// A length the session computed fell outside its buffer, or the
+    /// transport claimed to take more bytes than it was given: a bug, so the
+    /// connection is closed rather than answered with what the slice missed.
+    Internal,
 }
 
 impl<E: fmt::Debug> fmt::Display for Error<E> {
@@ -46,6 +50,7 @@ impl<E: fmt::Debug> fmt::Display for Error<E> {
             Self::FrameTimeout => f.write_str("frame not completed in time"),
             Self::Evicted => f.write_str("closed to make room for a new client"),
             Self::WriteZero => f.write_str("transport accepted no bytes"),
+            Self::Internal => f.write_str("internal length error"),
         }
     }
 }
@@ -90,14 +95,14 @@ async fn run<T: Read + Write, S: Service>(
     loop {
         let mut consumed = 0;
         loop {
-            let pending = rx.get(consumed..filled).unwrap_or(&[]);
+            let Some(pending) = rx.get(consumed..filled) else { return Err(Error::Internal) };
             let len = match mbap::next_frame_len(pending) {
                 Ok(Some(len)) => len,
                 Ok(None) => break,
                 Err(mbap::Error::BadLength(len)) => return Err(Error::BadLength(len)),
                 Err(mbap::Error::Truncated) => break,
             };
-            let frame = pending.get(..len).unwrap_or(&[]);
+            let Some(frame) = pending.get(..len) else { return Err(Error::Internal) };
             // The configuration in force for each request: a change applies at once.
             let (policy, idle_timeout) = server.with_config(|config| {
                 (Policy { read_only: config.policy.read_only || read_only, ..config.policy }, config.idle_timeout)
@@ -112,7 +117,7 @@ async fn run<T: Read + Write, S: Service>(
                     } else if function.is_write() {
                         debug!("slot {}: function {:#x} wrote at {}", slot, u8::from(function), address());
                     }
-                    let out = reply.get(..len).unwrap_or(&[]);
+                    let Some(out) = reply.get(..len) else { return Err(Error::Internal) };
                     let deadline = idle_timeout.map(|t| Instant::now() + t);
                     guarded(write_all(stream, out), deadline, server, slot).await??;
                 }
@@ -135,7 +140,7 @@ async fn run<T: Read + Write, S: Service>(
             Some(started) => Some(started + config.frame_timeout),
             None => config.idle_timeout.map(|t| last_request + t),
         });
-        let free = rx.get_mut(filled..).unwrap_or(&mut []);
+        let Some(free) = rx.get_mut(filled..) else { return Err(Error::Internal) };
         match guarded(stream.read(free), deadline, server, slot).await {
             Ok(Ok(0)) => return Ok(()),
             Ok(Ok(n)) => filled += n,
@@ -170,7 +175,10 @@ async fn write_all<S: Write>(stream: &mut S, mut bytes: &[u8]) -> Result<(), Err
     while !bytes.is_empty() {
         match stream.write(bytes).await {
             Ok(0) => return Err(Error::WriteZero),
-            Ok(n) => bytes = bytes.get(n..).unwrap_or(&[]),
+            Ok(n) => match bytes.get(n..) {
+                Some(rest) => bytes = rest,
+                None => return Err(Error::Internal),
+            },
             Err(e) => return Err(Error::Transport(e)),
         }
     }
