@@ -10,51 +10,18 @@ use core::fmt;
 
 use super::{Exception, be_u16, put_be_u16};
 
-macro_rules! function_codes {
-    ($( $(#[$doc:meta])* $name:ident = $code:literal ),* $(,)?) => {
-        /// A function code (V1.1b3, 5.1), with a fallback for the ones this
-        /// server does not implement.
-        #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-        #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-        pub enum FunctionCode {
-            $( $(#[$doc])* $name, )*
-            /// Any other code: answered with exception 01.
-            Unknown(u8),
-        }
-
-        impl From<u8> for FunctionCode {
-            fn from(code: u8) -> Self {
-                match code {
-                    $( $code => Self::$name, )*
-                    other => Self::Unknown(other),
-                }
-            }
-        }
-
-        impl From<FunctionCode> for u8 {
-            fn from(code: FunctionCode) -> u8 {
-                match code {
-                    $( FunctionCode::$name => $code, )*
-                    FunctionCode::Unknown(other) => other,
-                }
-            }
-        }
-    };
-}
-
-function_codes! {
-    /// 0x01 Read Coils (6.1).
-    ReadCoils = 0x01,
-    /// 0x03 Read Holding Registers (6.3).
-    ReadHoldingRegisters = 0x03,
-    /// 0x05 Write Single Coil (6.5).
-    WriteSingleCoil = 0x05,
-    /// 0x06 Write Single Register (6.6).
-    WriteSingleRegister = 0x06,
-    /// 0x0F Write Multiple Coils (6.11).
-    WriteMultipleCoils = 0x0F,
-    /// 0x10 Write Multiple Registers (6.12).
-    WriteMultipleRegisters = 0x10,
+code_table! {
+    /// A function code (V1.1b3, 5.1). The codes this server does not
+    /// implement are `Unknown`, and answered with exception 01.
+    pub enum FunctionCode {
+        display: "function",
+        ReadCoils = 0x01, "read coils", section "6.1";
+        ReadHoldingRegisters = 0x03, "read holding registers", section "6.3";
+        WriteSingleCoil = 0x05, "write single coil", section "6.5";
+        WriteSingleRegister = 0x06, "write single register", section "6.6";
+        WriteMultipleCoils = 0x0F, "write multiple coils", section "6.11";
+        WriteMultipleRegisters = 0x10, "write multiple registers", section "6.12";
+    }
 }
 
 impl FunctionCode {
@@ -263,12 +230,11 @@ impl<'a> Response<'a> {
     pub fn parse(pdu: &'a [u8]) -> Result<Self, Malformed> {
         let (&code, data) = pdu.split_first().ok_or(Malformed)?;
         if code & EXCEPTION_FLAG != 0 {
-            return match data {
-                [exception] => Ok(Self::Exception {
-                    function: code & !EXCEPTION_FLAG,
-                    exception: Exception::from_code(*exception).ok_or(Malformed)?,
-                }),
-                _ => Err(Malformed),
+            // This server sends only the exceptions it knows.
+            let [exception] = *data else { return Err(Malformed) };
+            return match Exception::from(exception) {
+                Exception::Unknown(_) => Err(Malformed),
+                exception => Ok(Self::Exception { function: code & !EXCEPTION_FLAG, exception }),
             };
         }
         let counted = || match data.split_first() {
@@ -542,7 +508,45 @@ mod tests {
     #[test]
     fn function_codes_round_trip() {
         for code in 0..=u8::MAX {
-            assert_eq!(u8::from(FunctionCode::from(code)), code);
+            let function = FunctionCode::from(code);
+            assert_eq!(u8::from(function), code);
+            assert_eq!(function.code(), code);
         }
+    }
+
+    #[test]
+    fn unlisted_function_codes_are_unknown() {
+        const LISTED: [u8; 6] = [0x01, 0x03, 0x05, 0x06, 0x0F, 0x10];
+        for code in 0..=u8::MAX {
+            let unknown = FunctionCode::from(code) == FunctionCode::Unknown(code);
+            assert_eq!(unknown, !LISTED.contains(&code), "{code:#04x}");
+        }
+        assert_eq!(FunctionCode::from(0x0F), FunctionCode::WriteMultipleCoils);
+        assert_eq!(FunctionCode::from(0x83), FunctionCode::Unknown(0x83));
+    }
+
+    #[test]
+    fn function_code_display_texts() {
+        let text = |code: u8| FunctionCode::from(code).to_string();
+        assert_eq!(text(0x01), "function 01: read coils");
+        assert_eq!(text(0x03), "function 03: read holding registers");
+        assert_eq!(text(0x05), "function 05: write single coil");
+        assert_eq!(text(0x06), "function 06: write single register");
+        assert_eq!(text(0x0F), "function 0f: write multiple coils");
+        assert_eq!(text(0x10), "function 10: write multiple registers");
+        assert_eq!(text(0x2B), "function 2b: unknown");
+        assert_eq!(FunctionCode::WriteSingleCoil.name(), "write single coil");
+    }
+
+    #[test]
+    fn unknown_exception_codes_are_not_a_reply_of_this_server() {
+        for code in [0x00, 0x05, 0x0A, 0x0C, 0xFF] {
+            assert_eq!(Response::parse(&[0x83, code]), Err(Malformed), "{code:#04x}");
+        }
+        // But an unknown exception still emits as it is.
+        let mut buf = [0xa5u8; 3];
+        let response = Response::Exception { function: 0x03, exception: Exception::Unknown(0x0A) };
+        assert_eq!(response.emit(&mut buf), Some(2));
+        assert_eq!(buf, [0x83, 0x0A, 0xa5]);
     }
 }
