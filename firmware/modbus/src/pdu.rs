@@ -24,6 +24,23 @@ code_table! {
     }
 }
 
+/// The one mapping from a message to its function code: [`Request`] and
+/// [`Response`] name their variants after their function. Extra arms cover
+/// variants that are not named after one.
+macro_rules! function_of {
+    ($message:expr $(, $other:pat => $value:expr)* $(,)?) => {
+        match $message {
+            Self::ReadCoils { .. } => FunctionCode::ReadCoils,
+            Self::ReadHoldingRegisters { .. } => FunctionCode::ReadHoldingRegisters,
+            Self::WriteSingleCoil { .. } => FunctionCode::WriteSingleCoil,
+            Self::WriteSingleRegister { .. } => FunctionCode::WriteSingleRegister,
+            Self::WriteMultipleCoils { .. } => FunctionCode::WriteMultipleCoils,
+            Self::WriteMultipleRegisters { .. } => FunctionCode::WriteMultipleRegisters,
+            $( $other => $value, )*
+        }
+    };
+}
+
 impl FunctionCode {
     /// Whether the function changes the map (05, 06, 0F, 10).
     pub const fn is_write(self) -> bool {
@@ -144,14 +161,7 @@ impl<'a> Request<'a> {
 
     /// The function code of this request.
     pub fn function(&self) -> FunctionCode {
-        match self {
-            Self::ReadCoils { .. } => FunctionCode::ReadCoils,
-            Self::ReadHoldingRegisters { .. } => FunctionCode::ReadHoldingRegisters,
-            Self::WriteSingleCoil { .. } => FunctionCode::WriteSingleCoil,
-            Self::WriteSingleRegister { .. } => FunctionCode::WriteSingleRegister,
-            Self::WriteMultipleCoils { .. } => FunctionCode::WriteMultipleCoils,
-            Self::WriteMultipleRegisters { .. } => FunctionCode::WriteMultipleRegisters,
-        }
+        function_of!(self)
     }
 
     /// Whether this request changes the map.
@@ -311,16 +321,7 @@ impl<'a> Response<'a> {
 
     /// The function code byte on the wire.
     fn code(&self) -> u8 {
-        let function = match self {
-            Self::ReadCoils { .. } => FunctionCode::ReadCoils,
-            Self::ReadHoldingRegisters { .. } => FunctionCode::ReadHoldingRegisters,
-            Self::WriteSingleCoil { .. } => FunctionCode::WriteSingleCoil,
-            Self::WriteSingleRegister { .. } => FunctionCode::WriteSingleRegister,
-            Self::WriteMultipleCoils { .. } => FunctionCode::WriteMultipleCoils,
-            Self::WriteMultipleRegisters { .. } => FunctionCode::WriteMultipleRegisters,
-            Self::Exception { function, .. } => return function | EXCEPTION_FLAG,
-        };
-        function.into()
+        function_of!(self, Self::Exception { function, .. } => return function | EXCEPTION_FLAG).code()
     }
 }
 
@@ -536,6 +537,18 @@ mod tests {
         assert_eq!(text(0x10), "function 10: write multiple registers");
         assert_eq!(text(0x2B), "function 2b: unknown");
         assert_eq!(FunctionCode::WriteSingleCoil.name(), "write single coil");
+    }
+
+    #[test]
+    fn messages_carry_their_function_code() {
+        for fixture in &PYMODBUS {
+            let request = Request::parse(pdu(fixture.request)).unwrap();
+            assert_eq!(u8::from(request.function()), pdu(fixture.request)[0], "{}", fixture.name);
+            let response = Response::parse(pdu(fixture.reply)).unwrap();
+            assert_eq!(response.code(), pdu(fixture.reply)[0], "{}", fixture.name);
+        }
+        let refusal = Response::Exception { function: 0x2B, exception: Exception::IllegalFunction };
+        assert_eq!(refusal.code(), 0xAB);
     }
 
     #[test]
