@@ -21,6 +21,12 @@
 /// as `label 0b: spec name`; `Clone, Copy, Debug, PartialEq, Eq` and
 /// `defmt::Format` under the `defmt` feature. Each variant's doc starts with
 /// its code, name and section of the Modbus Application Protocol V1.1b3.
+///
+/// Each code is also its variant's discriminant (`repr(u8)`), so `code()` is
+/// a compare and a select rather than a lookup, and a match on the table is a
+/// match on the byte: this keeps the firmware as small as with fieldless
+/// enums. `Unknown` takes the discriminant after the last code, so list the
+/// codes in ascending order (the compiler rejects a collision).
 macro_rules! code_table {
     (
         $(#[$meta:meta])*
@@ -35,6 +41,7 @@ macro_rules! code_table {
         $(#[$meta])*
         #[derive(Clone, Copy, Debug, PartialEq, Eq)]
         #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+        #[repr(u8)]
         $vis enum $Table {
             $(
                 #[doc = concat!(
@@ -43,7 +50,7 @@ macro_rules! code_table {
                 )]
                 #[doc = ""]
                 $(#[$doc])*
-                $Variant,
+                $Variant = $code,
             )+
             /// A code this table does not list, kept as it came so that it
             /// round-trips.
@@ -52,6 +59,7 @@ macro_rules! code_table {
 
         impl $Table {
             /// The code on the wire.
+            #[inline]
             pub const fn code(self) -> u8 {
                 match self {
                     $( Self::$Variant => $code, )+
@@ -69,6 +77,7 @@ macro_rules! code_table {
         }
 
         impl From<u8> for $Table {
+            #[inline]
             fn from(code: u8) -> Self {
                 match code {
                     $( $code => Self::$Variant, )+
@@ -78,6 +87,7 @@ macro_rules! code_table {
         }
 
         impl From<$Table> for u8 {
+            #[inline]
             fn from(value: $Table) -> u8 {
                 value.code()
             }
