@@ -71,6 +71,28 @@ pub const fn coil_bytes(quantity: u16) -> usize {
     (quantity as usize).div_ceil(8)
 }
 
+/// The two 16-bit fields that are the whole data of a fixed-length PDU.
+fn fixed(data: &[u8]) -> Option<(u16, u16)> {
+    match *data {
+        [a, b, c, d] => Some((u16::from_be_bytes([a, b]), u16::from_be_bytes([c, d]))),
+        _ => None,
+    }
+}
+
+/// `quantity` if it is within `1..=max`.
+fn quantity_in(quantity: u16, max: u16) -> Option<u16> {
+    (1..=max).contains(&quantity).then_some(quantity)
+}
+
+/// A Write Single Coil value: [`COIL_ON`] or [`COIL_OFF`], nothing else (6.5).
+fn coil_value(value: u16) -> Option<bool> {
+    match value {
+        COIL_ON => Some(true),
+        COIL_OFF => Some(false),
+        _ => None,
+    }
+}
+
 /// A request PDU. Multiple writes borrow their values from the frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -93,70 +115,44 @@ impl<'a> Request<'a> {
     /// Parses a request PDU (function code and data).
     pub fn parse(pdu: &'a [u8]) -> Result<Self, Exception> {
         let (&code, data) = pdu.split_first().ok_or(Exception::IllegalFunction)?;
-        let function = FunctionCode::from(code);
-        // Every known function starts with two 16-bit fields.
-        let field = |offset| be_u16(data, offset).ok_or(Exception::IllegalDataValue);
-        let fixed = || {
-            if data.len() == 4 { Ok((field(0)?, field(2)?)) } else { Err(Exception::IllegalDataValue) }
-        };
-        let quantity_in = |quantity: u16, max: u16| {
-            if (1..=max).contains(&quantity) { Ok(quantity) } else { Err(Exception::IllegalDataValue) }
-        };
-        match function {
-            FunctionCode::ReadCoils => {
-                let (start, quantity) = fixed()?;
-                let quantity = quantity_in(quantity, MAX_READ_COILS)?;
-                Ok(Self::ReadCoils { start, quantity })
-            }
-            FunctionCode::ReadHoldingRegisters => {
-                let (start, quantity) = fixed()?;
-                let quantity = quantity_in(quantity, MAX_READ_REGISTERS)?;
-                Ok(Self::ReadHoldingRegisters { start, quantity })
-            }
-            FunctionCode::WriteSingleCoil => {
-                let (address, value) = fixed()?;
-                let value = match value {
-                    COIL_ON => true,
-                    COIL_OFF => false,
-                    _ => return Err(Exception::IllegalDataValue),
-                };
-                Ok(Self::WriteSingleCoil { address, value })
-            }
+        // Every known function starts with two 16-bit fields; whatever a known
+        // function's data does not allow is exception 03.
+        let request = match FunctionCode::from(code) {
+            FunctionCode::ReadCoils => fixed(data).and_then(|(start, quantity)| {
+                Some(Self::ReadCoils { start, quantity: quantity_in(quantity, MAX_READ_COILS)? })
+            }),
+            FunctionCode::ReadHoldingRegisters => fixed(data).and_then(|(start, quantity)| {
+                Some(Self::ReadHoldingRegisters { start, quantity: quantity_in(quantity, MAX_READ_REGISTERS)? })
+            }),
+            FunctionCode::WriteSingleCoil => fixed(data)
+                .and_then(|(address, value)| Some(Self::WriteSingleCoil { address, value: coil_value(value)? })),
             FunctionCode::WriteSingleRegister => {
-                let (address, value) = fixed()?;
-                Ok(Self::WriteSingleRegister { address, value })
+                fixed(data).map(|(address, value)| Self::WriteSingleRegister { address, value })
             }
-            FunctionCode::WriteMultipleCoils => {
-                let (start, quantity, values) = Self::multiple(data)?;
+            FunctionCode::WriteMultipleCoils => Self::multiple(data).and_then(|(start, quantity, values)| {
                 let quantity = quantity_in(quantity, MAX_WRITE_COILS)?;
-                if values.len() != coil_bytes(quantity) {
-                    return Err(Exception::IllegalDataValue);
-                }
-                Ok(Self::WriteMultipleCoils { start, quantity, values })
-            }
-            FunctionCode::WriteMultipleRegisters => {
-                let (start, quantity, values) = Self::multiple(data)?;
+                (values.len() == coil_bytes(quantity)).then_some(Self::WriteMultipleCoils { start, quantity, values })
+            }),
+            FunctionCode::WriteMultipleRegisters => Self::multiple(data).and_then(|(start, quantity, values)| {
                 let quantity = quantity_in(quantity, MAX_WRITE_REGISTERS)?;
-                if values.len() != 2 * usize::from(quantity) {
-                    return Err(Exception::IllegalDataValue);
-                }
-                Ok(Self::WriteMultipleRegisters { start, quantity, values })
-            }
-            FunctionCode::Unknown(_) => Err(Exception::IllegalFunction),
-        }
+                (values.len() == 2 * usize::from(quantity)).then_some(Self::WriteMultipleRegisters {
+                    start,
+                    quantity,
+                    values,
+                })
+            }),
+            FunctionCode::Unknown(_) => return Err(Exception::IllegalFunction),
+        };
+        request.ok_or(Exception::IllegalDataValue)
     }
 
     /// `start | quantity | byte count | values`, with the byte count matching
     /// the bytes that follow it.
-    fn multiple(data: &'a [u8]) -> Result<(u16, u16, &'a [u8]), Exception> {
-        let bad = Exception::IllegalDataValue;
-        let start = be_u16(data, 0).ok_or(bad)?;
-        let quantity = be_u16(data, 2).ok_or(bad)?;
-        let (&count, values) = data.get(4..).and_then(<[u8]>::split_first).ok_or(bad)?;
-        if values.len() != usize::from(count) {
-            return Err(bad);
-        }
-        Ok((start, quantity, values))
+    fn multiple(data: &'a [u8]) -> Option<(u16, u16, &'a [u8])> {
+        let start = be_u16(data, 0)?;
+        let quantity = be_u16(data, 2)?;
+        let (&count, values) = data.get(4..)?.split_first()?;
+        (values.len() == usize::from(count)).then_some((start, quantity, values))
     }
 
     /// The function code of this request.
@@ -251,10 +247,7 @@ impl<'a> Response<'a> {
             Some((&count, values)) if values.len() == usize::from(count) => Ok(values),
             _ => Err(Malformed),
         };
-        let fixed = || match data {
-            [a, b, c, d] => Ok((u16::from_be_bytes([*a, *b]), u16::from_be_bytes([*c, *d]))),
-            _ => Err(Malformed),
-        };
+        let fields = || fixed(data).ok_or(Malformed);
         match FunctionCode::from(code) {
             FunctionCode::ReadCoils => Ok(Self::ReadCoils { values: counted()? }),
             FunctionCode::ReadHoldingRegisters => {
@@ -265,24 +258,19 @@ impl<'a> Response<'a> {
                 Ok(Self::ReadHoldingRegisters { values })
             }
             FunctionCode::WriteSingleCoil => {
-                let (address, value) = fixed()?;
-                let value = match value {
-                    COIL_ON => true,
-                    COIL_OFF => false,
-                    _ => return Err(Malformed),
-                };
-                Ok(Self::WriteSingleCoil { address, value })
+                let (address, value) = fields()?;
+                Ok(Self::WriteSingleCoil { address, value: coil_value(value).ok_or(Malformed)? })
             }
             FunctionCode::WriteSingleRegister => {
-                let (address, value) = fixed()?;
+                let (address, value) = fields()?;
                 Ok(Self::WriteSingleRegister { address, value })
             }
             FunctionCode::WriteMultipleCoils => {
-                let (start, quantity) = fixed()?;
+                let (start, quantity) = fields()?;
                 Ok(Self::WriteMultipleCoils { start, quantity })
             }
             FunctionCode::WriteMultipleRegisters => {
-                let (start, quantity) = fixed()?;
+                let (start, quantity) = fields()?;
                 Ok(Self::WriteMultipleRegisters { start, quantity })
             }
             FunctionCode::Unknown(_) => Err(Malformed),
