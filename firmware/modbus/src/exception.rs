@@ -1,56 +1,23 @@
 //! Exception codes (Modbus Application Protocol V1.1b3, section 7).
 
-use core::fmt;
-
-/// A Modbus exception: the protocol's own error vocabulary.
-///
-/// The PDU parser and the data map return it, so an error becomes a reply
-/// with no mapping layer in between.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-#[repr(u8)]
-pub enum Exception {
-    /// 01: the function code is not supported (V1.1b3, 7).
-    IllegalFunction = 0x01,
-    /// 02: an address in the request is outside the map or may not be used this way.
-    IllegalDataAddress = 0x02,
-    /// 03: a quantity, byte count, length or value is not allowed.
-    IllegalDataValue = 0x03,
-    /// 04: the server failed while executing a valid request.
-    ServerDeviceFailure = 0x04,
-    /// 0B: the addressed unit does not answer behind this server (gateway use).
-    GatewayTargetDeviceFailedToRespond = 0x0B,
-}
-
-impl Exception {
-    /// The exception code on the wire.
-    pub const fn code(self) -> u8 {
-        self as u8
-    }
-
-    /// The exception with code `code`, if this server knows it.
-    pub const fn from_code(code: u8) -> Option<Self> {
-        match code {
-            0x01 => Some(Self::IllegalFunction),
-            0x02 => Some(Self::IllegalDataAddress),
-            0x03 => Some(Self::IllegalDataValue),
-            0x04 => Some(Self::ServerDeviceFailure),
-            0x0B => Some(Self::GatewayTargetDeviceFailedToRespond),
-            _ => None,
-        }
-    }
-}
-
-impl fmt::Display for Exception {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let text = match self {
-            Self::IllegalFunction => "illegal function",
-            Self::IllegalDataAddress => "illegal data address",
-            Self::IllegalDataValue => "illegal data value",
-            Self::ServerDeviceFailure => "server device failure",
-            Self::GatewayTargetDeviceFailedToRespond => "gateway target device failed to respond",
-        };
-        write!(f, "exception {:02x}: {}", self.code(), text)
+code_table! {
+    /// A Modbus exception: the protocol's own error vocabulary.
+    ///
+    /// The PDU parser and the data map return it, so an error becomes a reply
+    /// with no mapping layer in between. This server sends only the listed
+    /// codes; `Unknown` holds any other code a peer sends.
+    pub enum Exception {
+        display: "exception",
+        /// The function code is not supported.
+        IllegalFunction = 0x01, "illegal function", section "7";
+        /// An address in the request is outside the map or may not be used this way.
+        IllegalDataAddress = 0x02, "illegal data address", section "7";
+        /// A quantity, byte count, length or value is not allowed.
+        IllegalDataValue = 0x03, "illegal data value", section "7";
+        /// The server failed while executing a valid request.
+        ServerDeviceFailure = 0x04, "server device failure", section "7";
+        /// The addressed unit does not answer behind this server (gateway use).
+        GatewayTargetDeviceFailedToRespond = 0x0B, "gateway target device failed to respond", section "7";
     }
 }
 
@@ -60,14 +27,46 @@ impl core::error::Error for Exception {}
 mod tests {
     use super::*;
 
+    /// The codes this server knows, written here independently of the table.
+    const LISTED: [u8; 5] = [0x01, 0x02, 0x03, 0x04, 0x0B];
+
     #[test]
-    fn codes_round_trip() {
+    fn every_code_round_trips() {
         for code in 0..=u8::MAX {
-            if let Some(e) = Exception::from_code(code) {
-                assert_eq!(e.code(), code);
-            }
+            let exception = Exception::from(code);
+            assert_eq!(u8::from(exception), code);
+            assert_eq!(exception.code(), code);
         }
-        assert_eq!(Exception::from_code(0x0B).map(Exception::code), Some(0x0B));
-        assert_eq!(Exception::from_code(0x05), None);
+    }
+
+    #[test]
+    fn unlisted_codes_are_unknown() {
+        for code in 0..=u8::MAX {
+            let unknown = Exception::from(code) == Exception::Unknown(code);
+            assert_eq!(unknown, !LISTED.contains(&code), "{code:#04x}");
+        }
+        assert_eq!(Exception::from(0x0B), Exception::GatewayTargetDeviceFailedToRespond);
+        assert_eq!(Exception::from(0x05), Exception::Unknown(0x05));
+    }
+
+    #[test]
+    fn display_texts() {
+        let text = |code: u8| Exception::from(code).to_string();
+        assert_eq!(text(0x01), "exception 01: illegal function");
+        assert_eq!(text(0x02), "exception 02: illegal data address");
+        assert_eq!(text(0x03), "exception 03: illegal data value");
+        assert_eq!(text(0x04), "exception 04: server device failure");
+        assert_eq!(text(0x0B), "exception 0b: gateway target device failed to respond");
+        assert_eq!(text(0x0A), "exception 0a: unknown");
+        assert_eq!(text(0xFF), "exception ff: unknown");
+        assert_eq!(Exception::IllegalDataValue.name(), "illegal data value");
+    }
+
+    #[test]
+    fn is_an_error() {
+        fn error(e: impl core::error::Error + Copy + PartialEq) -> impl core::error::Error {
+            e
+        }
+        assert_eq!(error(Exception::ServerDeviceFailure).to_string(), "exception 04: server device failure");
     }
 }

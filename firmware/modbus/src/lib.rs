@@ -6,6 +6,9 @@
 #![cfg_attr(not(test), no_std)]
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::indexing_slicing))]
 
+#[macro_use]
+mod macros;
+
 pub mod exception;
 pub mod mbap;
 pub mod pdu;

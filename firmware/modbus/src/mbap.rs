@@ -130,9 +130,21 @@ impl<T: AsRef<[u8]>> Frame<T> {
         field::BEFORE_LENGTH.end + usize::from(self.length())
     }
 
-    /// The PDU: function code and data.
-    pub fn pdu(&self) -> &[u8] {
-        self.buffer.as_ref().get(field::PDU_START..self.frame_len()).unwrap_or(&[])
+    /// The PDU: function code and data, never empty.
+    ///
+    /// Fails as [`Frame::check_len`] does when the buffer does not hold a
+    /// whole, well-framed frame.
+    pub fn pdu(&self) -> Result<&[u8], Error> {
+        self.check_len()?;
+        // After check_len the buffer holds frame_len() >= PDU_START + 1 bytes,
+        // so neither split fails; if one did, the frame would be cut short.
+        let Some((frame, _next)) = self.buffer.as_ref().split_at_checked(self.frame_len()) else {
+            return Err(Error::Truncated);
+        };
+        let Some((_header, pdu)) = frame.split_at_checked(field::PDU_START) else {
+            return Err(Error::Truncated);
+        };
+        Ok(pdu)
     }
 }
 
@@ -160,6 +172,9 @@ impl<T: AsRef<[u8]> + AsMut<[u8]>> Frame<T> {
     }
 
     /// The bytes after the header, where a PDU is emitted (up to [`MAX_PDU_LEN`]).
+    ///
+    /// Empty when the buffer has no room past the header: then no PDU fits,
+    /// and an `emit` into it returns `None`.
     pub fn payload_mut(&mut self) -> &mut [u8] {
         let data = self.buffer.as_mut();
         let end = data.len().min(MAX_ADU_LEN);
@@ -235,7 +250,7 @@ mod tests {
         assert_eq!(frame.length(), 6);
         assert_eq!(frame.unit_id(), 1);
         assert_eq!(frame.frame_len(), 12);
-        assert_eq!(frame.pdu(), &[0x03, 0x01, 0x00, 0x00, 0x03]);
+        assert_eq!(frame.pdu(), Ok(&[0x03, 0x01, 0x00, 0x00, 0x03][..]));
     }
 
     #[test]
@@ -253,7 +268,7 @@ mod tests {
         two[12..].copy_from_slice(&READ_VERSION);
         assert_eq!(next_frame_len(&two), Ok(Some(12)));
         let frame = Frame::new_checked(&two[..]).unwrap();
-        assert_eq!(frame.pdu().len(), 5);
+        assert_eq!(frame.pdu().map(<[u8]>::len), Ok(5));
     }
 
     #[test]
@@ -275,7 +290,7 @@ mod tests {
         let mut min = [0u8; 8];
         min[..6].copy_from_slice(&header(2));
         assert_eq!(next_frame_len(&min), Ok(Some(8)));
-        assert_eq!(Frame::new_checked(&min[..]).unwrap().pdu(), &[0]);
+        assert_eq!(Frame::new_checked(&min[..]).unwrap().pdu(), Ok(&[0][..]));
     }
 
     #[test]
@@ -283,7 +298,20 @@ mod tests {
         let frame = Frame::new_unchecked(&[0x12u8][..]);
         assert_eq!(frame.transaction_id(), 0);
         assert_eq!(frame.unit_id(), 0);
-        assert_eq!(frame.pdu(), &[] as &[u8]);
+        assert_eq!(frame.pdu(), Err(Error::Truncated));
+    }
+
+    #[test]
+    fn pdu_of_a_frame_that_is_not_whole_is_an_error() {
+        for n in 0..READ_VERSION.len() {
+            assert_eq!(Frame::new_unchecked(&READ_VERSION[..n]).pdu(), Err(Error::Truncated), "prefix {n}");
+        }
+        // A length field of 1 counts the unit id only: no function code.
+        let no_function = [0, 1, 0, 0, 0, 1, 1, 0x03];
+        assert_eq!(Frame::new_unchecked(&no_function[..]).pdu(), Err(Error::BadLength(1)));
+        let mut too_long = [0u8; 300];
+        too_long[4..6].copy_from_slice(&255u16.to_be_bytes());
+        assert_eq!(Frame::new_unchecked(&too_long[..]).pdu(), Err(Error::BadLength(255)));
     }
 
     #[test]

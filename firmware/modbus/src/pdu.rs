@@ -10,51 +10,35 @@ use core::fmt;
 
 use super::{Exception, be_u16, put_be_u16};
 
-macro_rules! function_codes {
-    ($( $(#[$doc:meta])* $name:ident = $code:literal ),* $(,)?) => {
-        /// A function code (V1.1b3, 5.1), with a fallback for the ones this
-        /// server does not implement.
-        #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-        #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-        pub enum FunctionCode {
-            $( $(#[$doc])* $name, )*
-            /// Any other code: answered with exception 01.
-            Unknown(u8),
-        }
-
-        impl From<u8> for FunctionCode {
-            fn from(code: u8) -> Self {
-                match code {
-                    $( $code => Self::$name, )*
-                    other => Self::Unknown(other),
-                }
-            }
-        }
-
-        impl From<FunctionCode> for u8 {
-            fn from(code: FunctionCode) -> u8 {
-                match code {
-                    $( FunctionCode::$name => $code, )*
-                    FunctionCode::Unknown(other) => other,
-                }
-            }
-        }
-    };
+code_table! {
+    /// A function code (V1.1b3, 5.1). The codes this server does not
+    /// implement are `Unknown`, and answered with exception 01.
+    pub enum FunctionCode {
+        display: "function",
+        ReadCoils = 0x01, "read coils", section "6.1";
+        ReadHoldingRegisters = 0x03, "read holding registers", section "6.3";
+        WriteSingleCoil = 0x05, "write single coil", section "6.5";
+        WriteSingleRegister = 0x06, "write single register", section "6.6";
+        WriteMultipleCoils = 0x0F, "write multiple coils", section "6.11";
+        WriteMultipleRegisters = 0x10, "write multiple registers", section "6.12";
+    }
 }
 
-function_codes! {
-    /// 0x01 Read Coils (6.1).
-    ReadCoils = 0x01,
-    /// 0x03 Read Holding Registers (6.3).
-    ReadHoldingRegisters = 0x03,
-    /// 0x05 Write Single Coil (6.5).
-    WriteSingleCoil = 0x05,
-    /// 0x06 Write Single Register (6.6).
-    WriteSingleRegister = 0x06,
-    /// 0x0F Write Multiple Coils (6.11).
-    WriteMultipleCoils = 0x0F,
-    /// 0x10 Write Multiple Registers (6.12).
-    WriteMultipleRegisters = 0x10,
+/// The one mapping from a message to its function code: [`Request`] and
+/// [`Response`] name their variants after their function. Extra arms cover
+/// variants that are not named after one.
+macro_rules! function_of {
+    ($message:expr $(, $other:pat => $value:expr)* $(,)?) => {
+        match $message {
+            Self::ReadCoils { .. } => FunctionCode::ReadCoils,
+            Self::ReadHoldingRegisters { .. } => FunctionCode::ReadHoldingRegisters,
+            Self::WriteSingleCoil { .. } => FunctionCode::WriteSingleCoil,
+            Self::WriteSingleRegister { .. } => FunctionCode::WriteSingleRegister,
+            Self::WriteMultipleCoils { .. } => FunctionCode::WriteMultipleCoils,
+            Self::WriteMultipleRegisters { .. } => FunctionCode::WriteMultipleRegisters,
+            $( $other => $value, )*
+        }
+    };
 }
 
 impl FunctionCode {
@@ -87,6 +71,28 @@ pub const fn coil_bytes(quantity: u16) -> usize {
     (quantity as usize).div_ceil(8)
 }
 
+/// The two 16-bit fields that are the whole data of a fixed-length PDU.
+fn fixed(data: &[u8]) -> Option<(u16, u16)> {
+    match *data {
+        [a, b, c, d] => Some((u16::from_be_bytes([a, b]), u16::from_be_bytes([c, d]))),
+        _ => None,
+    }
+}
+
+/// `quantity` if it is within `1..=max`.
+fn quantity_in(quantity: u16, max: u16) -> Option<u16> {
+    (1..=max).contains(&quantity).then_some(quantity)
+}
+
+/// A Write Single Coil value: [`COIL_ON`] or [`COIL_OFF`], nothing else (6.5).
+fn coil_value(value: u16) -> Option<bool> {
+    match value {
+        COIL_ON => Some(true),
+        COIL_OFF => Some(false),
+        _ => None,
+    }
+}
+
 /// A request PDU. Multiple writes borrow their values from the frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -109,82 +115,49 @@ impl<'a> Request<'a> {
     /// Parses a request PDU (function code and data).
     pub fn parse(pdu: &'a [u8]) -> Result<Self, Exception> {
         let (&code, data) = pdu.split_first().ok_or(Exception::IllegalFunction)?;
-        let function = FunctionCode::from(code);
-        // Every known function starts with two 16-bit fields.
-        let field = |offset| be_u16(data, offset).ok_or(Exception::IllegalDataValue);
-        let fixed = || {
-            if data.len() == 4 { Ok((field(0)?, field(2)?)) } else { Err(Exception::IllegalDataValue) }
-        };
-        let quantity_in = |quantity: u16, max: u16| {
-            if (1..=max).contains(&quantity) { Ok(quantity) } else { Err(Exception::IllegalDataValue) }
-        };
-        match function {
-            FunctionCode::ReadCoils => {
-                let (start, quantity) = fixed()?;
-                let quantity = quantity_in(quantity, MAX_READ_COILS)?;
-                Ok(Self::ReadCoils { start, quantity })
-            }
-            FunctionCode::ReadHoldingRegisters => {
-                let (start, quantity) = fixed()?;
-                let quantity = quantity_in(quantity, MAX_READ_REGISTERS)?;
-                Ok(Self::ReadHoldingRegisters { start, quantity })
-            }
-            FunctionCode::WriteSingleCoil => {
-                let (address, value) = fixed()?;
-                let value = match value {
-                    COIL_ON => true,
-                    COIL_OFF => false,
-                    _ => return Err(Exception::IllegalDataValue),
-                };
-                Ok(Self::WriteSingleCoil { address, value })
-            }
+        // Every known function starts with two 16-bit fields; whatever a known
+        // function's data does not allow is exception 03.
+        let request = match FunctionCode::from(code) {
+            FunctionCode::ReadCoils => fixed(data).and_then(|(start, quantity)| {
+                Some(Self::ReadCoils { start, quantity: quantity_in(quantity, MAX_READ_COILS)? })
+            }),
+            FunctionCode::ReadHoldingRegisters => fixed(data).and_then(|(start, quantity)| {
+                Some(Self::ReadHoldingRegisters { start, quantity: quantity_in(quantity, MAX_READ_REGISTERS)? })
+            }),
+            FunctionCode::WriteSingleCoil => fixed(data)
+                .and_then(|(address, value)| Some(Self::WriteSingleCoil { address, value: coil_value(value)? })),
             FunctionCode::WriteSingleRegister => {
-                let (address, value) = fixed()?;
-                Ok(Self::WriteSingleRegister { address, value })
+                fixed(data).map(|(address, value)| Self::WriteSingleRegister { address, value })
             }
-            FunctionCode::WriteMultipleCoils => {
-                let (start, quantity, values) = Self::multiple(data)?;
+            FunctionCode::WriteMultipleCoils => Self::multiple(data).and_then(|(start, quantity, values)| {
                 let quantity = quantity_in(quantity, MAX_WRITE_COILS)?;
-                if values.len() != coil_bytes(quantity) {
-                    return Err(Exception::IllegalDataValue);
-                }
-                Ok(Self::WriteMultipleCoils { start, quantity, values })
-            }
-            FunctionCode::WriteMultipleRegisters => {
-                let (start, quantity, values) = Self::multiple(data)?;
+                (values.len() == coil_bytes(quantity)).then_some(Self::WriteMultipleCoils { start, quantity, values })
+            }),
+            FunctionCode::WriteMultipleRegisters => Self::multiple(data).and_then(|(start, quantity, values)| {
                 let quantity = quantity_in(quantity, MAX_WRITE_REGISTERS)?;
-                if values.len() != 2 * usize::from(quantity) {
-                    return Err(Exception::IllegalDataValue);
-                }
-                Ok(Self::WriteMultipleRegisters { start, quantity, values })
-            }
-            FunctionCode::Unknown(_) => Err(Exception::IllegalFunction),
-        }
+                (values.len() == 2 * usize::from(quantity)).then_some(Self::WriteMultipleRegisters {
+                    start,
+                    quantity,
+                    values,
+                })
+            }),
+            FunctionCode::Unknown(_) => return Err(Exception::IllegalFunction),
+        };
+        request.ok_or(Exception::IllegalDataValue)
     }
 
     /// `start | quantity | byte count | values`, with the byte count matching
     /// the bytes that follow it.
-    fn multiple(data: &'a [u8]) -> Result<(u16, u16, &'a [u8]), Exception> {
-        let bad = Exception::IllegalDataValue;
-        let start = be_u16(data, 0).ok_or(bad)?;
-        let quantity = be_u16(data, 2).ok_or(bad)?;
-        let (&count, values) = data.get(4..).and_then(<[u8]>::split_first).ok_or(bad)?;
-        if values.len() != usize::from(count) {
-            return Err(bad);
-        }
-        Ok((start, quantity, values))
+    fn multiple(data: &'a [u8]) -> Option<(u16, u16, &'a [u8])> {
+        let start = be_u16(data, 0)?;
+        let quantity = be_u16(data, 2)?;
+        let (&count, values) = data.get(4..)?.split_first()?;
+        (values.len() == usize::from(count)).then_some((start, quantity, values))
     }
 
     /// The function code of this request.
     pub fn function(&self) -> FunctionCode {
-        match self {
-            Self::ReadCoils { .. } => FunctionCode::ReadCoils,
-            Self::ReadHoldingRegisters { .. } => FunctionCode::ReadHoldingRegisters,
-            Self::WriteSingleCoil { .. } => FunctionCode::WriteSingleCoil,
-            Self::WriteSingleRegister { .. } => FunctionCode::WriteSingleRegister,
-            Self::WriteMultipleCoils { .. } => FunctionCode::WriteMultipleCoils,
-            Self::WriteMultipleRegisters { .. } => FunctionCode::WriteMultipleRegisters,
-        }
+        function_of!(self)
     }
 
     /// Whether this request changes the map.
@@ -263,22 +236,18 @@ impl<'a> Response<'a> {
     pub fn parse(pdu: &'a [u8]) -> Result<Self, Malformed> {
         let (&code, data) = pdu.split_first().ok_or(Malformed)?;
         if code & EXCEPTION_FLAG != 0 {
-            return match data {
-                [exception] => Ok(Self::Exception {
-                    function: code & !EXCEPTION_FLAG,
-                    exception: Exception::from_code(*exception).ok_or(Malformed)?,
-                }),
-                _ => Err(Malformed),
+            // This server sends only the exceptions it knows.
+            let [exception] = *data else { return Err(Malformed) };
+            return match Exception::from(exception) {
+                Exception::Unknown(_) => Err(Malformed),
+                exception => Ok(Self::Exception { function: code & !EXCEPTION_FLAG, exception }),
             };
         }
         let counted = || match data.split_first() {
             Some((&count, values)) if values.len() == usize::from(count) => Ok(values),
             _ => Err(Malformed),
         };
-        let fixed = || match data {
-            [a, b, c, d] => Ok((u16::from_be_bytes([*a, *b]), u16::from_be_bytes([*c, *d]))),
-            _ => Err(Malformed),
-        };
+        let fields = || fixed(data).ok_or(Malformed);
         match FunctionCode::from(code) {
             FunctionCode::ReadCoils => Ok(Self::ReadCoils { values: counted()? }),
             FunctionCode::ReadHoldingRegisters => {
@@ -289,24 +258,19 @@ impl<'a> Response<'a> {
                 Ok(Self::ReadHoldingRegisters { values })
             }
             FunctionCode::WriteSingleCoil => {
-                let (address, value) = fixed()?;
-                let value = match value {
-                    COIL_ON => true,
-                    COIL_OFF => false,
-                    _ => return Err(Malformed),
-                };
-                Ok(Self::WriteSingleCoil { address, value })
+                let (address, value) = fields()?;
+                Ok(Self::WriteSingleCoil { address, value: coil_value(value).ok_or(Malformed)? })
             }
             FunctionCode::WriteSingleRegister => {
-                let (address, value) = fixed()?;
+                let (address, value) = fields()?;
                 Ok(Self::WriteSingleRegister { address, value })
             }
             FunctionCode::WriteMultipleCoils => {
-                let (start, quantity) = fixed()?;
+                let (start, quantity) = fields()?;
                 Ok(Self::WriteMultipleCoils { start, quantity })
             }
             FunctionCode::WriteMultipleRegisters => {
-                let (start, quantity) = fixed()?;
+                let (start, quantity) = fields()?;
                 Ok(Self::WriteMultipleRegisters { start, quantity })
             }
             FunctionCode::Unknown(_) => Err(Malformed),
@@ -345,16 +309,7 @@ impl<'a> Response<'a> {
 
     /// The function code byte on the wire.
     fn code(&self) -> u8 {
-        let function = match self {
-            Self::ReadCoils { .. } => FunctionCode::ReadCoils,
-            Self::ReadHoldingRegisters { .. } => FunctionCode::ReadHoldingRegisters,
-            Self::WriteSingleCoil { .. } => FunctionCode::WriteSingleCoil,
-            Self::WriteSingleRegister { .. } => FunctionCode::WriteSingleRegister,
-            Self::WriteMultipleCoils { .. } => FunctionCode::WriteMultipleCoils,
-            Self::WriteMultipleRegisters { .. } => FunctionCode::WriteMultipleRegisters,
-            Self::Exception { function, .. } => return function | EXCEPTION_FLAG,
-        };
-        function.into()
+        function_of!(self, Self::Exception { function, .. } => return function | EXCEPTION_FLAG).code()
     }
 }
 
@@ -542,7 +497,57 @@ mod tests {
     #[test]
     fn function_codes_round_trip() {
         for code in 0..=u8::MAX {
-            assert_eq!(u8::from(FunctionCode::from(code)), code);
+            let function = FunctionCode::from(code);
+            assert_eq!(u8::from(function), code);
+            assert_eq!(function.code(), code);
         }
+    }
+
+    #[test]
+    fn unlisted_function_codes_are_unknown() {
+        const LISTED: [u8; 6] = [0x01, 0x03, 0x05, 0x06, 0x0F, 0x10];
+        for code in 0..=u8::MAX {
+            let unknown = FunctionCode::from(code) == FunctionCode::Unknown(code);
+            assert_eq!(unknown, !LISTED.contains(&code), "{code:#04x}");
+        }
+        assert_eq!(FunctionCode::from(0x0F), FunctionCode::WriteMultipleCoils);
+        assert_eq!(FunctionCode::from(0x83), FunctionCode::Unknown(0x83));
+    }
+
+    #[test]
+    fn function_code_display_texts() {
+        let text = |code: u8| FunctionCode::from(code).to_string();
+        assert_eq!(text(0x01), "function 01: read coils");
+        assert_eq!(text(0x03), "function 03: read holding registers");
+        assert_eq!(text(0x05), "function 05: write single coil");
+        assert_eq!(text(0x06), "function 06: write single register");
+        assert_eq!(text(0x0F), "function 0f: write multiple coils");
+        assert_eq!(text(0x10), "function 10: write multiple registers");
+        assert_eq!(text(0x2B), "function 2b: unknown");
+        assert_eq!(FunctionCode::WriteSingleCoil.name(), "write single coil");
+    }
+
+    #[test]
+    fn messages_carry_their_function_code() {
+        for fixture in &PYMODBUS {
+            let request = Request::parse(pdu(fixture.request)).unwrap();
+            assert_eq!(u8::from(request.function()), pdu(fixture.request)[0], "{}", fixture.name);
+            let response = Response::parse(pdu(fixture.reply)).unwrap();
+            assert_eq!(response.code(), pdu(fixture.reply)[0], "{}", fixture.name);
+        }
+        let refusal = Response::Exception { function: 0x2B, exception: Exception::IllegalFunction };
+        assert_eq!(refusal.code(), 0xAB);
+    }
+
+    #[test]
+    fn unknown_exception_codes_are_not_a_reply_of_this_server() {
+        for code in [0x00, 0x05, 0x0A, 0x0C, 0xFF] {
+            assert_eq!(Response::parse(&[0x83, code]), Err(Malformed), "{code:#04x}");
+        }
+        // But an unknown exception still emits as it is.
+        let mut buf = [0xa5u8; 3];
+        let response = Response::Exception { function: 0x03, exception: Exception::Unknown(0x0A) };
+        assert_eq!(response.emit(&mut buf), Some(2));
+        assert_eq!(buf, [0x83, 0x0A, 0xa5]);
     }
 }

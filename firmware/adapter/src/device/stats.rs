@@ -92,7 +92,7 @@ impl Stats {
             Exception::IllegalDataAddress => &self.bad_address,
             Exception::IllegalDataValue => &self.bad_value,
             Exception::GatewayTargetDeviceFailedToRespond => &self.other_unit,
-            Exception::ServerDeviceFailure => return,
+            Exception::ServerDeviceFailure | Exception::Unknown(_) => return,
         };
         Self::count(counter);
     }

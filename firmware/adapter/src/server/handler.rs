@@ -42,8 +42,9 @@ pub fn respond(frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], image: &mut Image, p
     if header.protocol_id != mbap::MODBUS_PROTOCOL_ID {
         return Outcome::Discard { protocol_id: header.protocol_id };
     }
-    let pdu = request.pdu();
-    // The length field is at least 2, so a frame always carries a function code.
+    // The session passes whole frames only, and their PDU always holds a
+    // function code; a frame that is not whole is refused as function 0.
+    let pdu = request.pdu().unwrap_or_default();
     let code = pdu.first().copied().unwrap_or(0);
     let function = FunctionCode::from(code);
     let mut out = Frame::new_unchecked(&mut reply[..]);
