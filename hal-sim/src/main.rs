@@ -4,10 +4,9 @@
 
 mod cli;
 mod control;
-mod executor;
+mod runtime;
 mod sim;
 mod tap;
-mod time;
 
 use std::hash::{BuildHasher, Hasher, RandomState};
 use std::io::Write as _;
@@ -19,7 +18,7 @@ use embassy_net::{Ipv4Cidr, Runner, Stack, StackResources, StaticConfigV4};
 use sim_robot::SimRobot;
 
 use crate::cli::{Action, Options};
-use crate::executor::Executor;
+use crate::runtime::Executor;
 use crate::sim::{Board, OutputLatch};
 use crate::tap::TunTapDevice;
 
@@ -70,7 +69,7 @@ fn main() -> ExitCode {
     run(options, device, control)
 }
 
-/// Builds the stack and the board, and runs the executor forever.
+/// Builds the stack and the board, and runs the runtime's loop forever.
 fn run(
     options: Options,
     device: TunTapDevice,
