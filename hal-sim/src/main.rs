@@ -10,6 +10,7 @@ mod tap;
 
 use std::hash::{BuildHasher, Hasher, RandomState};
 use std::io::Write as _;
+use std::os::unix::net::UnixListener;
 use std::process::ExitCode;
 
 use adapter::server::{self, SOCKET_POOL, Shared, SlotId};
@@ -70,11 +71,7 @@ fn main() -> ExitCode {
 }
 
 /// Builds the stack and the board, and runs the runtime's loop forever.
-fn run(
-    options: Options,
-    device: TunTapDevice,
-    control: Option<async_io::Async<std::os::unix::net::UnixListener>>,
-) -> ! {
+fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>) -> ! {
     let net_config = embassy_net::Config::ipv4_static(StaticConfigV4 {
         address: Ipv4Cidr::new(options.address, options.prefix_len),
         gateway: options.gateway,
@@ -110,7 +107,7 @@ fn start(
     runner: Runner<'static, TunTapDevice>,
     board: &'static Board,
     options: &'static Options,
-    control: Option<async_io::Async<std::os::unix::net::UnixListener>>,
+    control: Option<UnixListener>,
 ) -> Result<(), embassy_executor::SpawnError> {
     spawner.spawn(net_task(runner)?);
     spawner.spawn(refresh_task(board)?);

@@ -1,14 +1,15 @@
 //! hal-sim's runtime: embassy's raw executor on one thread that sleeps in
-//! `ppoll(2)` on the descriptors its tasks wait for (the TAP), on an eventfd
-//! for wakes from other threads (async-io's reactor, for the control socket),
-//! and until the next timer.
+//! `ppoll(2)` on the descriptors its tasks wait for (the TAP, the control
+//! socket), on an eventfd for wakes from other threads, and until the next
+//! timer. It is hal-sim's only thread.
 //!
 //! embassy's std executor sleeps on a condition variable, so a frame on the
 //! TAP had to wake a reactor thread first (async-io's), which then woke the
 //! executor: two thread switches per frame. Here the loop waits on the
 //! descriptors itself, with the timer queue's next deadline as the timeout.
 //!
-//! - [`fd`]: the descriptor waits ([`poll_readable`] for the TAP driver);
+//! - [`fd`]: the descriptor waits ([`poll_readable`] for the TAP driver,
+//!   [`read_with`] and [`write_with`] for the control socket);
 //! - [`time`]: embassy-time's driver and its timer queue;
 //! - [`wake`]: how a wake reaches the loop (embassy's pender, the eventfd).
 //!
@@ -24,7 +25,7 @@ use std::marker::PhantomData;
 
 use embassy_executor::{Spawner, raw};
 
-pub use self::fd::poll_readable;
+pub use self::fd::{poll_readable, read_with, write_with};
 use self::wake::Signal;
 
 /// Rounds of tasks waking tasks after which the descriptors are looked at

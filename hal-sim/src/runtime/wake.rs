@@ -1,8 +1,10 @@
 //! How a wake reaches the loop: a flag the loop reads before it sleeps, and
 //! an eventfd it sleeps on, written only by a wake that finds it asleep.
 //!
-//! On the loop's own thread a wake is two atomic stores and no system call;
-//! the eventfd is for wakes from other threads (async-io's reactor).
+//! On the loop's own thread (every wake, in practice: it is hal-sim's only
+//! thread) a wake is two atomic stores and no system call. The eventfd is
+//! there because a [`Waker`](std::task::Waker) may be sent to, and woken
+//! from, any thread.
 
 use std::cell::Cell;
 use std::io;
