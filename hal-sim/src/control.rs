@@ -2,20 +2,22 @@
 //! (docs/hal-sim.md). One reply line per command: `ok ...` or `err REASON`.
 //!
 //! [`parse`] turns a line into a [`Command`] (pure, tested below);
-//! [`execute`] applies it to the [`Board`]. The socket tasks run on the
-//! executor thread, so a command never interleaves with the 100 ms refresh.
+//! [`execute`] applies it to the [`Board`]. The sockets are non-blocking
+//! std sockets that the socket tasks read and write through the runtime's
+//! descriptor waits, on the runtime's one thread: a command never
+//! interleaves with the 100 ms refresh, and no other thread is needed.
 
 use std::fmt::Write as _;
+use std::io::{Read as _, Write as _};
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::Path;
 
 use adapter::io::{ANALOG_CHANNELS, RobotState, RobotStatus};
 use adapter::map::table::{DIGITAL_PINS, TOOL_PINS};
-use async_io::Async;
 use embassy_executor::Spawner;
-use futures_lite::{AsyncReadExt, AsyncWriteExt};
 use sim_robot::Event;
 
+use crate::runtime;
 use crate::sim::Board;
 
 /// Control connections served at once; one more gets `err busy` and is closed.
@@ -248,8 +250,9 @@ pub fn reply(board: &Board, line: &[u8]) -> String {
 }
 
 /// Binds the control socket at `path`, replacing a stale socket file left
-/// by a hal-sim that is gone (but not one that still answers).
-pub fn bind(path: &Path) -> std::io::Result<Async<UnixListener>> {
+/// by a hal-sim that is gone (but not one that still answers). The listener
+/// is non-blocking.
+pub fn bind(path: &Path) -> std::io::Result<UnixListener> {
     if path.exists() {
         if UnixStream::connect(path).is_ok() {
             return Err(std::io::Error::new(
@@ -259,16 +262,36 @@ pub fn bind(path: &Path) -> std::io::Result<Async<UnixListener>> {
         }
         std::fs::remove_file(path)?;
     }
-    Async::<UnixListener>::bind(path)
+    let listener = UnixListener::bind(path)?;
+    listener.set_nonblocking(true)?;
+    Ok(listener)
+}
+
+/// The next connection, non-blocking like the listener.
+async fn accept(listener: &UnixListener) -> std::io::Result<UnixStream> {
+    let (stream, _) = runtime::read_with(listener, UnixListener::accept).await?;
+    stream.set_nonblocking(true)?;
+    Ok(stream)
+}
+
+/// Writes all of `bytes`, waiting whenever the socket's buffer is full.
+async fn write_all(stream: &UnixStream, mut bytes: &[u8]) -> std::io::Result<()> {
+    while !bytes.is_empty() {
+        match runtime::write_with(stream, |mut s| s.write(bytes)).await? {
+            0 => return Err(std::io::ErrorKind::WriteZero.into()),
+            n => bytes = bytes.get(n..).unwrap_or_default(),
+        }
+    }
+    Ok(())
 }
 
 /// Accepts control connections forever; each is served by its own task.
 #[embassy_executor::task]
-pub async fn accept_task(spawner: Spawner, listener: Async<UnixListener>, board: &'static Board) -> ! {
+pub async fn accept_task(spawner: Spawner, listener: UnixListener, board: &'static Board) -> ! {
     static ACTIVE: ActiveClients = ActiveClients(std::sync::atomic::AtomicUsize::new(0));
     loop {
-        let mut stream = match listener.accept().await {
-            Ok((stream, _)) => stream,
+        let stream = match accept(&listener).await {
+            Ok(stream) => stream,
             Err(e) => {
                 log::warn!("control: accept failed: {e}");
                 embassy_time::Timer::after_millis(100).await;
@@ -277,7 +300,7 @@ pub async fn accept_task(spawner: Spawner, listener: Async<UnixListener>, board:
         };
         let admitted = ACTIVE.0.load(std::sync::atomic::Ordering::Relaxed) < MAX_CONTROL_CLIENTS;
         if !admitted {
-            let _ = stream.write_all(b"err busy: too many control connections\n").await;
+            let _ = write_all(&stream, b"err busy: too many control connections\n").await;
             continue;
         }
         match client_task(stream, board, &ACTIVE) {
@@ -291,23 +314,23 @@ pub async fn accept_task(spawner: Spawner, listener: Async<UnixListener>, board:
 struct ActiveClients(std::sync::atomic::AtomicUsize);
 
 #[embassy_executor::task(pool_size = MAX_CONTROL_CLIENTS)]
-async fn client_task(mut stream: Async<UnixStream>, board: &'static Board, active: &'static ActiveClients) {
+async fn client_task(stream: UnixStream, board: &'static Board, active: &'static ActiveClients) {
     use std::sync::atomic::Ordering::Relaxed;
     active.0.fetch_add(1, Relaxed);
-    if let Err(e) = serve(&mut stream, board).await {
+    if let Err(e) = serve(&stream, board).await {
         log::debug!("control: connection ended: {e}");
     }
     active.0.fetch_sub(1, Relaxed);
 }
 
 /// Answers every line of one connection until it closes.
-async fn serve(stream: &mut Async<UnixStream>, board: &Board) -> std::io::Result<()> {
+async fn serve(stream: &UnixStream, board: &Board) -> std::io::Result<()> {
     let mut buffer = [0u8; MAX_LINE_LEN];
     let mut filled = 0;
     let mut discarding = false;
     loop {
         let free = buffer.get_mut(filled..).unwrap_or_default();
-        let n = stream.read(free).await?;
+        let n = runtime::read_with(stream, |mut s| s.read(free)).await?;
         if n == 0 {
             return Ok(());
         }
@@ -331,7 +354,7 @@ async fn serve(stream: &mut Async<UnixStream>, board: &Board) -> std::io::Result
             filled = 0;
         }
         if !out.is_empty() {
-            stream.write_all(out.as_bytes()).await?;
+            write_all(stream, out.as_bytes()).await?;
         }
     }
 }

@@ -4,13 +4,13 @@
 
 mod cli;
 mod control;
-mod executor;
+mod runtime;
 mod sim;
 mod tap;
-mod time;
 
 use std::hash::{BuildHasher, Hasher, RandomState};
 use std::io::Write as _;
+use std::os::unix::net::UnixListener;
 use std::process::ExitCode;
 
 use adapter::device::{self, Device};
@@ -20,7 +20,7 @@ use embassy_net::{Runner, Stack, StackResources};
 use sim_robot::SimRobot;
 
 use crate::cli::{Action, Options};
-use crate::executor::Executor;
+use crate::runtime::Executor;
 use crate::sim::{Board, OutputLatch};
 use crate::tap::TunTapDevice;
 
@@ -74,12 +74,8 @@ fn main() -> ExitCode {
     run(options, device, control)
 }
 
-/// Builds the stack and the board, and runs the executor forever.
-fn run(
-    options: Options,
-    device: TunTapDevice,
-    control: Option<async_io::Async<std::os::unix::net::UnixListener>>,
-) -> ! {
+/// Builds the stack and the board, and runs the runtime's loop forever.
+fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>) -> ! {
     let net_config = adapter::net::initial_config(&options.settings.network);
     // The Modbus listeners, and DHCP's socket when the mode is dhcp.
     let resources = Box::leak(Box::new(StackResources::<{ SOCKET_POOL + 1 }>::new()));
@@ -115,7 +111,7 @@ fn start(
     board: &'static Board,
     server: &'static ModbusServer,
     options: &'static Options,
-    control: Option<async_io::Async<std::os::unix::net::UnixListener>>,
+    control: Option<UnixListener>,
 ) -> Result<(), embassy_executor::SpawnError> {
     spawner.spawn(net_task(runner)?);
     spawner.spawn(link_task(stack, server, options)?);

@@ -4,16 +4,16 @@
 //! reads a frame into the receive buffer and lends it to the stack,
 //! `transmit` lends the transmit buffer and writes the frame out. No heap
 //! allocation per frame, and no read system call while the TAP is known to be
-//! empty: after a read says `WouldBlock`, the executor's own `poll(2)` waits
-//! on the descriptor ([`crate::executor::poll_readable`]).
+//! empty: after a read says `WouldBlock`, the runtime's loop waits on the
+//! descriptor in its `ppoll(2)` ([`crate::runtime::poll_readable`]).
 
 use std::io;
-use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
+use std::os::fd::{AsFd, AsRawFd, FromRawFd, OwnedFd};
 use std::task::Context;
 
 use embassy_net_driver::{Capabilities, Driver, HardwareAddress, LinkState};
 
-use crate::executor;
+use crate::runtime;
 
 /// Ethernet header: destination, source, EtherType.
 const ETHERNET_HEADER_LEN: usize = 14;
@@ -28,7 +28,7 @@ pub struct TunTapDevice {
     frame_len: usize,
     rx: Box<[u8]>,
     tx: Box<[u8]>,
-    /// False after a read found the TAP empty, until `poll(2)` says otherwise.
+    /// False after a read found the TAP empty, until `ppoll(2)` says otherwise.
     readable: bool,
     mac: [u8; 6],
 }
@@ -101,13 +101,13 @@ impl Driver for TunTapDevice {
     type TxToken<'a> = TxToken<'a>;
 
     fn receive(&mut self, cx: &mut Context) -> Option<(Self::RxToken<'_>, Self::TxToken<'_>)> {
-        let fd = self.fd.as_raw_fd();
         if !self.readable {
-            if !executor::poll_readable(fd, cx.waker()) {
+            if runtime::poll_readable(self.fd.as_fd(), cx).is_pending() {
                 return None;
             }
             self.readable = true;
         }
+        let fd = self.fd.as_raw_fd();
         // SAFETY: reads at most `rx.len()` bytes into the live buffer `rx`.
         let n = unsafe { libc::read(fd, self.rx.as_mut_ptr().cast(), self.rx.len()) };
         match usize::try_from(n) {
@@ -121,8 +121,8 @@ impl Driver for TunTapDevice {
                     log::warn!("tap: read failed: {e}");
                 }
                 self.readable = false;
-                // Register now: the frame may come before the executor sleeps.
-                if executor::poll_readable(fd, cx.waker()) {
+                // Wait now: the frame may come before the loop sleeps.
+                if runtime::poll_readable(self.fd.as_fd(), cx).is_ready() {
                     cx.waker().wake_by_ref();
                 }
                 None

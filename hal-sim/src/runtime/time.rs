@@ -1,7 +1,6 @@
-//! embassy-time's driver for hal-sim: the host's monotonic clock in
-//! microseconds, and embassy-time-queue-utils' timer queue, which the
-//! executor's loop looks at before it sleeps and whose next deadline is the
-//! loop's `poll(2)` timeout (src/executor.rs).
+//! embassy-time's driver: the host's monotonic clock in microseconds, and
+//! embassy-time-queue-utils' timer queue, which the loop looks at before it
+//! sleeps and whose next deadline is the loop's `ppoll(2)` timeout.
 //!
 //! embassy-time's own std driver keeps the queue behind a mutex that `now()`
 //! also takes, and runs an alarm thread that each earlier deadline wakes
@@ -15,7 +14,7 @@ use std::time::Instant;
 use embassy_time_driver::Driver;
 use embassy_time_queue_utils::Queue;
 
-use crate::executor;
+use super::wake;
 
 /// embassy-time's tick rate must be the microsecond this driver counts in.
 const _: () = assert!(embassy_time_driver::TICK_HZ == 1_000_000, "enable embassy-time/tick-hz-1_000_000");
@@ -62,16 +61,16 @@ impl Driver for HostDriver {
             earlier
         };
         if earlier {
-            // From the executor's own tasks this is a no-op: the loop reads the
+            // From the loop's own tasks this is a no-op: the loop reads the
             // alarm before it sleeps. From another thread it wakes the loop.
-            executor::timer_changed();
+            wake::from_elsewhere();
         }
     }
 }
 
 /// Wakes the tasks whose timers are due and returns the tick of the next
-/// deadline (`u64::MAX`: none). Called by the executor's loop.
-pub fn expire() -> u64 {
+/// deadline (`u64::MAX`: none).
+pub(super) fn expire() -> u64 {
     let now = DRIVER.now();
     let mut timers = DRIVER.timers();
     if timers.alarm <= now {
@@ -81,6 +80,6 @@ pub fn expire() -> u64 {
 }
 
 /// Microseconds from now until `tick` (0 if it has passed).
-pub fn until(tick: u64) -> u64 {
+pub(super) fn until(tick: u64) -> u64 {
     tick.saturating_sub(DRIVER.now())
 }

@@ -1,0 +1,126 @@
+//! hal-sim's runtime: embassy's raw executor on one thread that sleeps in
+//! `ppoll(2)` on the descriptors its tasks wait for (the TAP, the control
+//! socket), on an eventfd for wakes from other threads, and until the next
+//! timer. It is hal-sim's only thread.
+//!
+//! embassy's std executor sleeps on a condition variable, so a frame on the
+//! TAP had to wake a reactor thread first (async-io's), which then woke the
+//! executor: two thread switches per frame. Here the loop waits on the
+//! descriptors itself, with the timer queue's next deadline as the timeout.
+//!
+//! - [`fd`]: the descriptor waits ([`poll_readable`] for the TAP driver,
+//!   [`read_with`] and [`write_with`] for the control socket);
+//! - [`time`]: embassy-time's driver and its timer queue;
+//! - [`wake`]: how a wake reaches the loop (embassy's pender, the eventfd).
+//!
+//! The loop (this file) uses all three; `time` uses `wake`, to wake the loop
+//! when a timer is set from another thread. Nothing here uses the loop.
+
+mod fd;
+mod time;
+mod wake;
+
+use std::io;
+use std::marker::PhantomData;
+
+use embassy_executor::{Spawner, raw};
+
+pub use self::fd::{poll_readable, read_with, write_with};
+use self::wake::Signal;
+
+/// Rounds of tasks waking tasks after which the descriptors are looked at
+/// anyway, so a busy loop still reads the TAP.
+const MAX_BUSY_ROUNDS: u32 = 8;
+
+/// The loop: a single-threaded executor, as `embassy_executor::Executor` on
+/// std, that sleeps in `ppoll(2)` (see the module's documentation).
+pub struct Executor {
+    inner: raw::Executor,
+    sleep: Sleep,
+    not_send: PhantomData<*mut ()>,
+}
+
+impl std::fmt::Debug for Executor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Executor").field("sleep", &self.sleep).finish_non_exhaustive()
+    }
+}
+
+impl Executor {
+    /// The loop; fails only if the kernel gives no eventfd.
+    pub fn new() -> io::Result<Self> {
+        let signal = Signal::new()?;
+        let inner = raw::Executor::new(signal.context());
+        Ok(Self { inner, sleep: Sleep { signal, pollfds: Vec::new() }, not_send: PhantomData })
+    }
+
+    /// Runs `init` with a spawner, then the tasks, forever, on this thread.
+    pub fn run(&'static mut self, init: impl FnOnce(Spawner)) -> ! {
+        let Self { inner, sleep, .. } = self;
+        let signal = sleep.signal;
+        signal.enter();
+        init(inner.spawner());
+        let mut busy_rounds = 0;
+        loop {
+            signal.clear();
+            // SAFETY: `poll` runs only here, on this thread, never reentrantly
+            // (the pender only sets flags and writes the eventfd).
+            unsafe { inner.poll() };
+            let alarm = time::expire();
+            let busy = signal.sleep();
+            if !busy {
+                sleep.wait(Some(time::until(alarm)).filter(|_| alarm != u64::MAX));
+                busy_rounds = 0;
+            } else if busy_rounds >= MAX_BUSY_ROUNDS {
+                sleep.wait(Some(0));
+                busy_rounds = 0;
+            } else {
+                busy_rounds += 1;
+            }
+            signal.awake();
+        }
+    }
+}
+
+/// The loop's sleep: `ppoll(2)` on the eventfd and the descriptor waits.
+#[derive(Debug)]
+struct Sleep {
+    signal: &'static Signal,
+    /// The eventfd first, then one entry per descriptor wait; kept between
+    /// rounds so that a round allocates nothing.
+    pollfds: Vec<libc::pollfd>,
+}
+
+impl Sleep {
+    /// Waits at most `timeout_us` microseconds (`None`: without end) until a
+    /// waited-on descriptor is ready or the eventfd is written, and wakes the
+    /// tasks whose descriptor is ready.
+    fn wait(&mut self, timeout_us: Option<u64>) {
+        self.pollfds.clear();
+        self.pollfds.push(libc::pollfd { fd: self.signal.fd(), events: libc::POLLIN, revents: 0 });
+        fd::fill(&mut self.pollfds);
+        let timeout = timeout_us.map(|us| libc::timespec {
+            tv_sec: libc::time_t::try_from(us / 1_000_000).unwrap_or(libc::time_t::MAX),
+            // Below 1e9: fits any c_long.
+            tv_nsec: ((us % 1_000_000) * 1_000) as libc::c_long,
+        });
+        let timeout_ptr = timeout.as_ref().map_or(std::ptr::null(), std::ptr::from_ref);
+        // SAFETY: `pollfds` is a live array of `pollfds.len()` pollfd (entries
+        // with a negative descriptor are ignored); `timeout_ptr` is null or
+        // points to a live timespec; no signal mask is passed.
+        let n = unsafe {
+            libc::ppoll(self.pollfds.as_mut_ptr(), self.pollfds.len() as libc::nfds_t, timeout_ptr, std::ptr::null())
+        };
+        // Awake again: the wakes below need no eventfd write.
+        self.signal.awake();
+        if n <= 0 {
+            return; // nothing ready, or EINTR: go round again
+        }
+        if let Some((eventfd, waits)) = self.pollfds.split_first() {
+            if eventfd.revents != 0 {
+                self.signal.drain();
+            }
+            fd::dispatch(waits);
+        }
+    }
+}
