@@ -167,6 +167,18 @@ impl HalSim {
         tokio_modbus::client::tcp::connect(self.addr()).await.expect("tokio-modbus connects to hal-sim")
     }
 
+    /// A tokio-modbus client connected to hal-sim (unit id 0xFF) that can
+    /// also tell how hal-sim ends the connection. Call it inside [`HalSim::run`].
+    pub async fn connect_watched(&self) -> WatchedClient {
+        let stream = tokio::net::TcpStream::connect(self.addr()).await.expect("a TCP connection to hal-sim");
+        // Out of tokio (it stays non-blocking) to duplicate the descriptor; both go back in.
+        let stream = stream.into_std().expect("the stream out of tokio");
+        let watch = stream.try_clone().expect("a second descriptor of the socket");
+        let ctx = tokio_modbus::client::tcp::attach(tokio::net::TcpStream::from_std(stream).expect("back in tokio"));
+        let socket = tokio::net::TcpStream::from_std(watch).expect("the second descriptor in tokio");
+        WatchedClient { ctx, socket }
+    }
+
     /// A raw TCP stream to hal-sim, without Nagle, for hand-made frames.
     pub async fn raw(&self) -> tokio::net::TcpStream {
         let stream = tokio::net::TcpStream::connect(self.addr()).await.expect("a TCP connection to hal-sim");
@@ -195,7 +207,8 @@ impl Drop for HalSim {
 
 /// Reads one whole reply frame within `wait`, as long as its length field
 /// says (which must be one a reply may carry: test-support's reference
-/// framer); `None` if nothing complete arrived, or the connection closed.
+/// framer); `None` if nothing complete arrived, or the connection closed (to
+/// tell which, see [`end_within`]).
 pub async fn read_frame<R: AsyncRead + Unpin>(stream: &mut R, wait: Duration) -> Option<Vec<u8>> {
     let read = async {
         let mut frame = vec![0u8; framer::LENGTH_END];
@@ -209,11 +222,77 @@ pub async fn read_frame<R: AsyncRead + Unpin>(stream: &mut R, wait: Duration) ->
     tokio::time::timeout(wait, read).await.ok().flatten()
 }
 
-/// Whether the server closed `stream` within `wait` (end of stream or reset,
-/// with no bytes before it).
-pub async fn closed_within(stream: &mut tokio::net::TcpStream, wait: Duration) -> bool {
-    let mut byte = [0u8; 1];
-    matches!(tokio::time::timeout(wait, stream.read(&mut byte)).await, Ok(Ok(0) | Err(_)))
+/// How a connection's server ended it, or did not, as one read by the client
+/// saw it.
+#[derive(Debug, PartialEq, Eq)]
+pub enum End {
+    /// End of stream: the server closed the connection (FIN).
+    Closed,
+    /// The server reset the connection (RST): `ECONNRESET`, or `EPIPE` when
+    /// the reset answered a write to a connection the server had closed.
+    Reset,
+    /// Bytes came instead of an end (the first read's worth).
+    Bytes(Vec<u8>),
+    /// Nothing came within the wait: the connection hangs, open.
+    Hang,
+    /// Another read error.
+    Error(std::io::ErrorKind),
+}
+
+impl End {
+    /// Whether the server closed or reset the connection.
+    pub fn is_closed(&self) -> bool {
+        matches!(self, End::Closed | End::Reset)
+    }
+}
+
+/// How the server ends `stream` within `wait`: what one read returns. An
+/// end already read is read again (a closed socket keeps reading as closed),
+/// so this also tells why an earlier read loop stopped.
+pub async fn end_within<R: tokio::io::AsyncRead + Unpin>(stream: &mut R, wait: Duration) -> End {
+    use std::io::ErrorKind;
+    use tokio::io::AsyncReadExt;
+    let mut buf = [0u8; 64];
+    match tokio::time::timeout(wait, stream.read(&mut buf)).await {
+        Err(_) => End::Hang,
+        Ok(Ok(0)) => End::Closed,
+        Ok(Ok(n)) => End::Bytes(buf[..n].to_vec()),
+        Ok(Err(e)) if matches!(e.kind(), ErrorKind::ConnectionReset | ErrorKind::BrokenPipe) => End::Reset,
+        Ok(Err(e)) => End::Error(e.kind()),
+    }
+}
+
+/// A tokio-modbus client that can also tell how the server ended its
+/// connection, which tokio-modbus cannot: it reports an end of stream as
+/// whatever the thread's last OS error was, and a server that stops
+/// answering as a request that never completes. So this keeps a second
+/// descriptor of the same socket, and reads the end there. It derefs to the
+/// tokio-modbus [`Context`].
+pub struct WatchedClient {
+    ctx: Context,
+    socket: tokio::net::TcpStream,
+}
+
+impl WatchedClient {
+    /// How the server ends the connection within `wait` (see [`end_within`]).
+    /// Call it with no request pending: a reply would be read as [`End::Bytes`].
+    pub async fn end_within(&mut self, wait: Duration) -> End {
+        end_within(&mut self.socket, wait).await
+    }
+}
+
+impl std::ops::Deref for WatchedClient {
+    type Target = Context;
+
+    fn deref(&self) -> &Context {
+        &self.ctx
+    }
+}
+
+impl std::ops::DerefMut for WatchedClient {
+    fn deref_mut(&mut self) -> &mut Context {
+        &mut self.ctx
+    }
 }
 
 /// The firmware version the hal-sim binary was built from, as it reports it

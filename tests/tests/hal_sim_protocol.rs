@@ -1,7 +1,7 @@
 //! hal-sim through tokio-modbus: every function code and exception, both
 //! views of the same points, both write policies, reserved addresses, the
 //! analog range checks, the unit id filter and the version registers
-//! (DATA_MAP.md). Each test runs its own hal-sim in its own namespace.
+//! (docs/data-map.md). Each test runs its own hal-sim in its own namespace.
 
 use std::time::Duration;
 

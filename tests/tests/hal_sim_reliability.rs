@@ -5,7 +5,7 @@
 use std::collections::HashMap;
 use std::time::Duration;
 
-use system_tests::hal_sim::{HalSim, closed_within};
+use system_tests::hal_sim::{HalSim, end_within};
 use test_support::framer::adu;
 use tokio::io::AsyncWriteExt;
 use tokio_modbus::prelude::*;
@@ -62,10 +62,8 @@ fn clients_outside_the_connect_allow_list_are_refused_at_once() {
         match tokio::net::TcpStream::connect(sim.addr()).await {
             Ok(mut stream) => {
                 let _ = stream.write_all(&adu(1, 0, 1, &[0x03, 0x00, 0x80, 0x00, 0x01])).await;
-                assert!(
-                    closed_within(&mut stream, Duration::from_secs(2)).await,
-                    "the connection is closed, unanswered"
-                );
+                let end = end_within(&mut stream, Duration::from_secs(2)).await;
+                assert!(end.is_closed(), "the connection is closed, unanswered: {end:?}");
             }
             Err(e) => assert_eq!(e.kind(), std::io::ErrorKind::ConnectionReset, "{e}"),
         }
@@ -111,7 +109,8 @@ fn the_control_socket_reports_the_diagnostics_counters() {
         let mut raw = sim.raw().await;
         raw.write_all(&adu(9, 7, 1, &[0x03, 0, 0, 0, 1])).await.unwrap();
         raw.write_all(&[0, 1, 0, 0, 0x01, 0x00]).await.unwrap();
-        assert!(closed_within(&mut raw, Duration::from_secs(2)).await);
+        let end = end_within(&mut raw, Duration::from_secs(2)).await;
+        assert!(end.is_closed(), "a bad length closes the connection: {end:?}");
     });
     let counters = stats(&sim);
     assert_eq!(counters["requests"], 3);

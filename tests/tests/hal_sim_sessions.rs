@@ -6,17 +6,12 @@
 
 use std::time::Duration;
 
-use system_tests::hal_sim::{HalSim, closed_within, read_frame};
+use system_tests::hal_sim::{HalSim, end_within, read_frame};
 use test_support::framer::adu;
 use tokio::io::AsyncWriteExt;
 use tokio_modbus::prelude::*;
 
 const REPLY_WAIT: Duration = Duration::from_secs(2);
-
-/// Whether a tokio-modbus context's connection has been closed by the server.
-async fn is_closed(ctx: &mut tokio_modbus::client::Context) -> bool {
-    matches!(tokio::time::timeout(REPLY_WAIT, ctx.read_holding_registers(128, 1)).await, Ok(Err(_)) | Err(_))
-}
 
 #[test]
 fn eight_clients_are_served_and_a_ninth_evicts_the_idlest() {
@@ -24,7 +19,7 @@ fn eight_clients_are_served_and_a_ninth_evicts_the_idlest() {
     sim.run(|| async {
         let mut clients = Vec::new();
         for i in 0..8u16 {
-            let mut ctx = sim.connect().await;
+            let mut ctx = sim.connect_watched().await;
             ctx.write_single_register(128 + i, i).await.unwrap().unwrap();
             clients.push(ctx);
         }
@@ -44,7 +39,8 @@ fn eight_clients_are_served_and_a_ninth_evicts_the_idlest() {
         tokio::time::sleep(Duration::from_millis(100)).await;
         for (i, ctx) in clients.iter_mut().enumerate() {
             if i == 3 {
-                assert!(is_closed(ctx).await, "the idlest client is evicted");
+                let end = ctx.end_within(REPLY_WAIT).await;
+                assert!(end.is_closed(), "the idlest client is evicted: {end:?}");
             } else {
                 assert_eq!(
                     ctx.read_holding_registers(128 + i as u16, 1).await.unwrap().unwrap(),
@@ -62,7 +58,7 @@ fn eight_clients_are_served_and_a_ninth_evicts_the_idlest() {
 fn max_connections_sets_how_many_are_served() {
     let sim = HalSim::start(&["--robot", "idle", "--max-connections", "2", "--idle-timeout", "0"]);
     sim.run(|| async {
-        let mut first = sim.connect().await;
+        let mut first = sim.connect_watched().await;
         first.read_holding_registers(0, 1).await.unwrap().unwrap();
         tokio::time::sleep(Duration::from_millis(50)).await;
         let mut second = sim.connect().await;
@@ -70,7 +66,8 @@ fn max_connections_sets_how_many_are_served() {
         let mut third = sim.connect().await;
         third.read_holding_registers(0, 1).await.unwrap().unwrap();
         tokio::time::sleep(Duration::from_millis(100)).await;
-        assert!(is_closed(&mut first).await);
+        let end = first.end_within(REPLY_WAIT).await;
+        assert!(end.is_closed(), "the first of three is evicted: {end:?}");
         second.read_holding_registers(0, 1).await.unwrap().unwrap();
         third.read_holding_registers(0, 1).await.unwrap().unwrap();
     });
@@ -80,14 +77,15 @@ fn max_connections_sets_how_many_are_served() {
 fn an_idle_session_times_out_and_a_busy_one_does_not() {
     let sim = HalSim::start(&["--robot", "idle", "--idle-timeout", "1"]);
     sim.run(|| async {
-        let mut idle = sim.connect().await;
+        let mut idle = sim.connect_watched().await;
         let mut busy = sim.connect().await;
         idle.read_holding_registers(0, 1).await.unwrap().unwrap();
         for _ in 0..8 {
             busy.read_holding_registers(0, 1).await.unwrap().unwrap();
             tokio::time::sleep(Duration::from_millis(250)).await;
         }
-        assert!(is_closed(&mut idle).await, "no request for 2 s with a 1 s idle timeout");
+        let end = idle.end_within(REPLY_WAIT).await;
+        assert!(end.is_closed(), "no request for 2 s with a 1 s idle timeout: {end:?}");
         busy.read_holding_registers(0, 1).await.unwrap().unwrap();
     });
     assert!(sim.log().contains("idle timeout"));
@@ -101,7 +99,8 @@ fn a_frame_that_stops_halfway_times_out() {
         let request = adu(1, 0, 1, &[0x03, 0x00, 0x80, 0x00, 0x01]);
         raw.write_all(&request[..5]).await.unwrap();
         // The frame timeout is 2 s; without idle timeout only it can close this.
-        assert!(closed_within(&mut raw, Duration::from_secs(4)).await, "a half frame is not waited for forever");
+        let end = end_within(&mut raw, Duration::from_secs(4)).await;
+        assert!(end.is_closed(), "a half frame is not waited for forever: {end:?}");
         let mut ctx = sim.connect().await;
         ctx.read_holding_registers(128, 1).await.unwrap().unwrap();
     });
@@ -185,7 +184,8 @@ fn a_bad_length_closes_that_connection_while_others_carry_on() {
             bad.extend_from_slice(&length.to_be_bytes());
             bad.extend_from_slice(&[0x01, 0x03, 0x00, 0x80, 0x00, 0x01]);
             raw.write_all(&bad).await.unwrap();
-            assert!(closed_within(&mut raw, REPLY_WAIT).await, "length {length} closes the connection");
+            let end = end_within(&mut raw, REPLY_WAIT).await;
+            assert!(end.is_closed(), "length {length} closes the connection: {end:?}");
             assert_eq!(other.read_holding_registers(128, 1).await.unwrap().unwrap(), [5], "after length {length}");
         }
         let mut fresh = sim.connect().await;

@@ -16,7 +16,7 @@ use tokio_modbus::ExceptionCode::{IllegalDataAddress, IllegalDataValue, IllegalF
 use tokio_modbus::client::{Client as _, Context, Reader as _, Writer as _};
 use tokio_modbus::{ExceptionCode, FunctionCode, ProtocolError, Request, Response};
 
-/// Coils 0-265 and registers 0-435 (DATA_MAP.md).
+/// Coils 0-265 and registers 0-435 (docs/data-map.md).
 const COILS: u16 = 266;
 const REGISTERS: u16 = 436;
 /// Register 259 without a robot: NOT READY.

@@ -12,32 +12,38 @@ use std::process::ExitCode;
 
 use adapter::map::Image;
 use adapter::server::handler::{self, Outcome, Policy};
-use modbus::mbap::MAX_ADU_LEN;
+use modbus::mbap::{HEADER_LEN, MAX_ADU_LEN};
 use rmodbus::server::ModbusFrame;
 use rmodbus::server::storage::ModbusStorageSmall;
 use rmodbus::{ModbusFrameBuf, ModbusProto};
 
-/// A request ADU: transaction 1, unit 1.
-fn request(case: &str) -> Option<Vec<u8>> {
-    let (pdu, quantity): (Vec<u8>, u16) = match case {
-        "fc03x10" => (vec![0x03, 0x00, 0x80, 0x00, 10], 10),
-        "fc03x125" => (vec![0x03, 0x00, 0x80, 0x00, 125], 125),
+/// A request ADU (transaction 1, unit 1) and the length of the normal reply
+/// ADU it must get, derived from the request's quantity.
+fn request(case: &str) -> Option<(Vec<u8>, usize)> {
+    let (pdu, reply_pdu_len) = match case {
+        "fc03x10" | "fc03x125" => {
+            let quantity: u16 = if case == "fc03x10" { 10 } else { 125 };
+            let mut pdu = vec![0x03, 0x00, 0x80];
+            pdu.extend(quantity.to_be_bytes());
+            // Reply: function code, byte count, then the registers.
+            (pdu, 2 + 2 * usize::from(quantity))
+        }
         "fc10x120" | "fc10x123" => {
             let quantity: u16 = if case == "fc10x120" { 120 } else { 123 };
             let mut pdu = vec![0x10, 0x00, 0x80];
             pdu.extend(quantity.to_be_bytes());
             pdu.push((2 * quantity) as u8);
             pdu.extend((0..quantity).flat_map(|v| (v * 7).to_be_bytes()));
-            (pdu, quantity)
+            // Reply: function code, start address, quantity.
+            (pdu, 5)
         }
         _ => return None,
     };
-    let _ = quantity;
     let mut adu = vec![0x00, 0x01, 0x00, 0x00];
     adu.extend(((pdu.len() + 1) as u16).to_be_bytes());
     adu.push(1);
     adu.extend(pdu);
-    Some(adu)
+    Some((adu, HEADER_LEN + reply_pdu_len))
 }
 
 fn ours(adu: &[u8], iterations: u64) -> usize {
@@ -87,7 +93,7 @@ fn main() -> ExitCode {
         eprintln!("usage: cost ours|rmodbus fc03x10|fc03x125|fc10x120|fc10x123 ITERATIONS");
         return ExitCode::from(2);
     };
-    let (Some(adu), Ok(iterations)) = (request(case), iterations.parse::<u64>()) else {
+    let (Some((adu, expected_reply)), Ok(iterations)) = (request(case), iterations.parse::<u64>()) else {
         eprintln!("cost: unknown case {case:?} or bad iteration count {iterations:?}");
         return ExitCode::from(2);
     };
@@ -104,11 +110,6 @@ fn main() -> ExitCode {
         }
     };
     // Every request must have been answered with a normal reply.
-    let expected_reply = match case.as_str() {
-        "fc03x10" => 9 + 20,
-        "fc03x125" => 9 + 250,
-        _ => 12,
-    };
     if bytes != expected_reply * iterations as usize {
         eprintln!("cost: {which} gave {bytes} reply bytes for {iterations} requests, expected {expected_reply} each");
         return ExitCode::FAILURE;

@@ -84,7 +84,7 @@ pub trait InputPins {
     fn analog(&mut self, channel: usize, kind: AnalogType) -> u16;
 }
 
-/// The robot controller's state (register 259, DATA_MAP.md *Robot state*).
+/// The robot controller's state (register 259, docs/data-map.md *Robot state*).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[repr(u16)]
@@ -185,7 +185,7 @@ pub trait Robot {
     fn telemetry(&mut self) -> Telemetry;
 }
 
-/// No robot link: NOT READY and zeros (DATA_MAP.md, *Robot state*).
+/// No robot link: NOT READY and zeros (docs/data-map.md, *Robot state*).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct NoRobot;
 

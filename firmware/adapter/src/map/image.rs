@@ -7,7 +7,7 @@
 use super::table::{self, Access, COILS, CoilView, Encoding, REGISTER_COUNT, REGISTERS, Update, reg, rows_in};
 use crate::modbus::Exception;
 
-/// What a master may write (DATA_MAP.md, decision 3).
+/// What a master may write (docs/data-map.md, decision 3).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum WritePolicy {

@@ -1,4 +1,4 @@
-//! The data map of `DATA_MAP.md`, written once as data.
+//! The data map of `docs/data-map.md`, written once as data.
 //!
 //! Every address of the coil space (0..=265) and the register space (0..=435)
 //! belongs to exactly one row; reserved ranges are rows too, so the tables are
@@ -27,7 +27,7 @@ impl Access {
     }
 }
 
-/// When a point changes (DATA_MAP.md, *Update classes*).
+/// When a point changes (docs/data-map.md, *Update classes*).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Update {
@@ -60,7 +60,7 @@ pub enum Encoding {
     Bool,
     /// 0 = no, 1 = safety stopped, 2 = safety stopped, recovery mode needed.
     SafetyStop,
-    /// A robot state: 0..=10 or 15 (DATA_MAP.md, *Robot state*).
+    /// A robot state: 0..=10 or 15 (docs/data-map.md, *Robot state*).
     RobotState,
     /// A plain unsigned number.
     Unsigned,
@@ -114,7 +114,7 @@ pub struct RegisterRow {
     pub access: Access,
     pub update: Update,
     pub encoding: Encoding,
-    /// The point's name, as in DATA_MAP.md (for test messages; the table's
+    /// The point's name, as in docs/data-map.md (for test messages; the table's
     /// source text names every row for readers).
     #[cfg(test)]
     pub name: &'static str,
@@ -244,7 +244,7 @@ const fn gap(first: u16, last: u16) -> RegisterRow {
     r(first, last, Reserved, Never, Zero, "reserved")
 }
 
-/// The holding registers (DATA_MAP.md, *Holding registers*), in address order.
+/// The holding registers (docs/data-map.md, *Holding registers*), in address order.
 #[rustfmt::skip]
 pub static REGISTERS: [RegisterRow; 44] = [
     r(0, 0, Read, Event, Pins { pins: DIGITAL_PINS }, "ControlBox digital input 1-16"),
@@ -307,7 +307,7 @@ const fn c(first: u16, last: u16, access: Access, view: CoilView, name: &'static
     }
 }
 
-/// The coils (DATA_MAP.md, *Coils*), in address order.
+/// The coils (docs/data-map.md, *Coils*), in address order.
 #[rustfmt::skip]
 pub static COILS: [CoilRow; 11] = [
     c(0, 15, Read, CoilView::Bit { register: reg::DIGITAL_INPUTS, bit: 0 }, "ControlBox digital input 1-16"),

@@ -1,6 +1,6 @@
-//! The process image against DATA_MAP.md, address by address.
+//! The process image against docs/data-map.md, address by address.
 //!
-//! `SPEC_REGISTERS` and `SPEC_COILS` are written from DATA_MAP.md by hand,
+//! `SPEC_REGISTERS` and `SPEC_COILS` are written from docs/data-map.md by hand,
 //! independently of `table.rs`, so a wrong row in the table fails here
 //! instead of agreeing with itself.
 
@@ -91,7 +91,7 @@ fn the_table_matches_data_map_md() {
             R => Access::Read,
             RW => Access::ReadWrite,
             Gap => Access::Reserved,
-            W => panic!("DATA_MAP.md has no write-only coils"),
+            W => panic!("docs/data-map.md has no write-only coils"),
         };
         assert_eq!(row.access, want, "coil {address}");
     }
