@@ -7,7 +7,7 @@
 use std::fmt::{self, Write as _};
 use std::path::PathBuf;
 
-use adapter::settings::{Cidr, Field, NetMode, Settings};
+use adapter::settings::{Cidr, Field, Name, NetMode, Settings};
 use sim_robot::Mode;
 
 /// The first lines of the usage text; the settings follow, from the table.
@@ -36,10 +36,11 @@ pub fn usage() -> String {
     text
 }
 
-/// hal-sim's factory settings: the model's defaults, on a static address in
-/// the test bench range (a TAP has no DHCP server).
+/// hal-sim's factory settings: the model's defaults, named after its MAC,
+/// on a static address in the test bench range (a TAP has no DHCP server).
 pub fn factory_defaults() -> Settings {
     let mut settings = Settings::DEFAULT;
+    settings.device.name = Name::from_mac(crate::MAC);
     settings.network.mode = NetMode::Static;
     settings.network.address = Some(DEFAULT_ADDRESS);
     settings
@@ -238,6 +239,7 @@ mod tests {
         }
         assert!(text.contains("--ip                  none, or an IPv4 address"), "{text}");
         assert!(text.contains("(default 198.18.0.2/24)"), "{text}");
+        assert!(text.contains("(default mbio-53494d)"), "{text}");
     }
 
     #[test]

@@ -32,7 +32,7 @@ const EXIT_USAGE: u8 = 2;
 /// Exit status when the TAP or the control socket cannot be opened.
 const EXIT_UNAVAILABLE: u8 = 1;
 /// The simulated device's MAC: locally administered, unicast.
-const MAC: [u8; 6] = [0x02, 0x4d, 0x42, 0x53, 0x49, 0x4d];
+pub(crate) const MAC: [u8; 6] = [0x02, 0x4d, 0x42, 0x53, 0x49, 0x4d];
 
 fn main() -> ExitCode {
     init_logging();

@@ -14,7 +14,7 @@
 //! - [`Qemu::slirp`]: user networking, a free port of 127.0.0.1 forwarded to
 //!   the firmware's port 502 (slirp's DHCP gives the firmware 10.0.2.15).
 //! - [`Qemu::tap`]: on the TAP of a new [`Namespace`] (no DHCP there: the
-//!   firmware falls back to 198.18.0.2/24 after 3 s).
+//!   firmware falls back to 198.18.0.2/24 after 5 s).
 //!
 //! QEMU always runs under `timeout`, writes its output (the firmware's defmt
 //! log, over semihosting) to a file rather than a pipe that could stall the
@@ -41,7 +41,7 @@ pub const ELF_ENV: &str = "FIRMWARE_MPS2_ELF";
 pub const BUILD_COMMAND: &str = "cargo build -p mps2-an386 --release --target thumbv7em-none-eabihf";
 /// `timeout` ends QEMU after this long whatever happens to the test.
 pub const QEMU_TIMEOUT: Duration = Duration::from_secs(300);
-/// Boot, link and address (DHCP, or its 3 s fallback) within this time.
+/// Boot, link and address (DHCP, or its 5 s fallback) within this time.
 pub const READY_TIMEOUT: Duration = Duration::from_secs(30);
 /// The FPGA IO block's LED0 register: bit n is user LED n (digital output n + 1).
 pub const LED0: u32 = 0x4002_8000;

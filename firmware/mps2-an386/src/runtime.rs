@@ -59,7 +59,12 @@ static PANICKED: AtomicBool = AtomicBool::new(false);
 fn panic(info: &core::panic::PanicInfo) -> ! {
     // A panic while logging the first one must not log again.
     if !PANICKED.swap(true, Ordering::AcqRel) {
-        defmt::error!("panicked: {}", defmt::Display2Format(info));
+        // The location only: formatting the message would link all of
+        // core::fmt (about 2 KiB) for a path the library cannot take.
+        match info.location() {
+            Some(at) => defmt::error!("panicked at {=str}:{=u32}", at.file(), at.line()),
+            None => defmt::error!("panicked"),
+        }
     }
     exit(EXIT_PANIC)
 }

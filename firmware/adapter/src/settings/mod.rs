@@ -424,7 +424,7 @@ fields! {
     /// The device's name.
     DeviceName: device.name, Text, AtOnce,
         env "DEVICE_NAME", flag "name",
-        rule "1-32 of a-z 0-9 -, not starting or ending with -",
+        rule "1-32 of a-z 0-9 -, not starting or ending with - (empty: mbio- and the MAC's last 3 bytes)",
         |text| Name::parse(text);
     /// DHCP or a static address.
     NetworkMode: network.mode, Text, AfterReboot,

@@ -104,6 +104,25 @@ pub const fn split_once(bytes: &[u8], separator: u8) -> Option<(&[u8], &[u8])> {
     None
 }
 
+/// `text` split at its first `separator` into what comes before and the
+/// number after it, which must be in `min..=max`; without a separator, all
+/// of `text` and `default`. (`10.0.0.0/8` is `(b"10.0.0.0", 8)` at `/`.)
+pub const fn number_suffix(
+    text: &[u8],
+    separator: u8,
+    min: u64,
+    max: u64,
+    default: u64,
+) -> Result<(&[u8], u64), Invalid> {
+    match split_once(text, separator) {
+        Some((head, number)) => match decimal_bytes(number) {
+            Some(value) if value >= min && value <= max => Ok((head, value)),
+            _ => Err(Invalid),
+        },
+        None => Ok((text, default)),
+    }
+}
+
 /// Dotted-quad IPv4 address, such as `192.168.1.50`.
 pub const fn ipv4(text: &[u8]) -> Option<[u8; 4]> {
     let mut rest = text;
@@ -184,15 +203,12 @@ impl Cidr {
         if is_none(text) {
             return Ok(None);
         }
-        let (address, prefix_len) = match split_once(text.as_bytes(), b'/') {
-            Some((address, prefix)) => match decimal_bytes(prefix) {
-                Some(prefix) if prefix >= 1 && prefix <= 32 => (address, prefix as u8),
-                _ => return Err(Invalid),
-            },
-            None => (text.as_bytes(), 24),
+        let (address, prefix_len) = match number_suffix(text.as_bytes(), b'/', 1, 32, 24) {
+            Ok(parts) => parts,
+            Err(e) => return Err(e),
         };
         match ipv4(address) {
-            Some(address) if is_unicast(address) => Ok(Some(Self { address, prefix_len })),
+            Some(address) if is_unicast(address) => Ok(Some(Self { address, prefix_len: prefix_len as u8 })),
             _ => Err(Invalid),
         }
     }
@@ -219,15 +235,9 @@ pub const fn is_unicast(address: [u8; 4]) -> bool {
 
 /// A network of an allow-list: `address/prefix` (prefix 0..=32) or a bare address (a /32).
 pub const fn network(text: &[u8]) -> Option<Network> {
-    let (address, prefix) = match split_once(text, b'/') {
-        Some((address, prefix)) => match decimal_bytes(prefix) {
-            Some(prefix) if prefix <= 32 => (address, prefix as u8),
-            _ => return None,
-        },
-        None => (text, 32),
-    };
+    let Ok((address, prefix)) = number_suffix(text, b'/', 0, 32, 32) else { return None };
     match ipv4(address) {
-        Some(address) => Network::new(address, prefix),
+        Some(address) => Network::new(address, prefix as u8),
         None => None,
     }
 }

@@ -28,11 +28,16 @@ fn every_default_shows_as_its_parser_takes_it_back() {
     settings.network.gateway = Ipv4::parse_optional("10.1.0.1").unwrap();
     settings.modbus.allow_write = parse::allow_list("10.1.0.0/16,10.2.0.9/32").unwrap();
     settings.robot.link = RobotLink::parse_optional("10.1.0.5:1502/3").unwrap();
-    for &field in Field::ALL {
-        let text = shown(&settings, field);
-        let mut again = Settings::DEFAULT;
-        again.set(field, &text).unwrap_or_else(|rule| panic!("{}={text}: {rule}", field.key()));
-        assert_eq!(shown(&again, field), text, "{}", field.key());
+    for settings in [Settings::DEFAULT, settings] {
+        for &field in Field::ALL {
+            let text = shown(&settings, field);
+            let mut again = settings;
+            again.set(field, &text).unwrap_or_else(|rule| panic!("{}={text}: {rule}", field.key()));
+            assert_eq!(again, settings, "{}={text} sets what was shown", field.key());
+            let mut fresh = Settings::DEFAULT;
+            fresh.set(field, &text).unwrap();
+            assert_eq!(shown(&fresh, field), text, "{}", field.key());
+        }
     }
 }
 
@@ -52,7 +57,7 @@ fn each_field_keeps_its_range() {
         (Field::NetworkDhcpTimeout, &["5", "600"], &["4", "601"]),
         (Field::NetworkMode, &["dhcp", "static"], &["auto"]),
         (Field::RobotPollInterval, &["20", "1000"], &["19", "1001"]),
-        (Field::DeviceName, &["a", "cell-4"], &["", "-a", "A"]),
+        (Field::DeviceName, &["a", "cell-4", ""], &["-a", "A"]),
     ];
     for (field, good, bad) in cases {
         for text in *good {

@@ -4,7 +4,7 @@
 
 use core::fmt;
 
-use super::parse::{Invalid, Ipv4, decimal_bytes, ipv4, is, is_none, split_once};
+use super::parse::{Invalid, Ipv4, ipv4, is, is_none, number_suffix};
 
 /// Longest device name (DEVICE.md section 1; also a DNS label's limit).
 pub const MAX_NAME_LEN: usize = 32;
@@ -22,10 +22,13 @@ impl Name {
     /// No name set: the device uses [`Name::from_mac`].
     pub const UNSET: Self = Self { bytes: [0; MAX_NAME_LEN], len: 0 };
 
-    /// A name as the rule allows it.
+    /// A name as the rule allows it; empty is [`Name::UNSET`] (the default).
     pub const fn parse(text: &str) -> Result<Self, Invalid> {
         let text = text.as_bytes();
-        if text.is_empty() || text.len() > MAX_NAME_LEN {
+        if text.is_empty() {
+            return Ok(Self::UNSET);
+        }
+        if text.len() > MAX_NAME_LEN {
             return Err(Invalid);
         }
         if let [b'-', ..] | [.., b'-'] = text {
@@ -90,7 +93,7 @@ impl fmt::Debug for Name {
 
 impl fmt::Display for Name {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(if self.len == 0 { "default" } else { self.as_str() })
+        f.write_str(self.as_str())
     }
 }
 
@@ -155,22 +158,10 @@ impl RobotLink {
         if is_none(text) {
             return Ok(None);
         }
-        let (rest, unit) = match split_once(text.as_bytes(), b'/') {
-            Some((rest, unit)) => match decimal_bytes(unit) {
-                Some(unit) if unit <= 255 => (rest, unit as u8),
-                _ => return Err(Invalid),
-            },
-            None => (text.as_bytes(), 1),
-        };
-        let (address, port) = match split_once(rest, b':') {
-            Some((address, port)) => match decimal_bytes(port) {
-                Some(port) if port >= 1 && port <= 65535 => (address, port as u16),
-                _ => return Err(Invalid),
-            },
-            None => (rest, 502),
-        };
+        let Ok((rest, unit)) = number_suffix(text.as_bytes(), b'/', 0, 255, 1) else { return Err(Invalid) };
+        let Ok((address, port)) = number_suffix(rest, b':', 1, 65535, 502) else { return Err(Invalid) };
         match ipv4(address) {
-            Some(address) => Ok(Some(Self { address, port, unit })),
+            Some(address) => Ok(Some(Self { address, port: port as u16, unit: unit as u8 })),
             None => Err(Invalid),
         }
     }
@@ -190,13 +181,14 @@ mod tests {
     fn names_follow_the_rule() {
         assert_eq!(Name::parse("cell-4-io").unwrap().as_str(), "cell-4-io");
         assert_eq!(Name::parse(&"a".repeat(32)).unwrap().as_str().len(), 32);
-        for bad in ["", "-io", "io-", "IO", "i_o", "i o", "ü", &"a".repeat(33)] {
+        assert_eq!(Name::parse(""), Ok(Name::UNSET), "empty: back to the default");
+        for bad in ["-io", "io-", "IO", "i_o", "i o", "ü", &"a".repeat(33)] {
             assert!(Name::parse(bad).is_err(), "{bad:?}");
         }
         assert_eq!(Name::from_mac([0x02, 0x4d, 0x42, 0x53, 0x49, 0x4d]).as_str(), "mbio-53494d");
         assert_eq!(Name::UNSET.or_default([0; 6]).as_str(), "mbio-000000");
         assert_eq!(Name::parse("x").unwrap().or_default([0; 6]).as_str(), "x");
-        assert_eq!(Name::UNSET.to_string(), "default");
+        assert_eq!(Name::UNSET.to_string(), "");
     }
 
     #[test]
