@@ -3,8 +3,8 @@
 //! client. Each test boots its own QEMU and ends with [`Qemu::finish`], which
 //! fails on a panic, a hard fault or an error line in the firmware's log.
 //!
-//! Needs the image (`cargo build -p firmware --release --target
-//! thumbv7em-none-eabihf --features mps2-an386 --bin mps2-an386`, or
+//! Needs the image (`cargo build -p mps2-an386 --release --target
+//! thumbv7em-none-eabihf`, or
 //! `FIRMWARE_MPS2_ELF`), `qemu-system-arm` and `defmt-print` (installed on
 //! first use if missing).
 

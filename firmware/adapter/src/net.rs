@@ -10,9 +10,8 @@
 //! - Link loss closes every Modbus session at once: its peer may be gone,
 //!   and after a renewal the address may have changed.
 
-use embassy_futures::select::select;
 use embassy_net::{ConfigV4, DhcpConfig, Ipv4Address, Ipv4Cidr, Stack, StaticConfigV4};
-use embassy_time::{Duration, with_timeout};
+use embassy_time::{Duration, Instant, Ticker};
 
 use crate::fmt::Ip;
 use crate::server::{Server, Service};
@@ -54,53 +53,60 @@ pub fn static_config(settings: &NetworkSettings) -> Option<StaticConfigV4> {
     })
 }
 
-/// Follows the link forever: configures the address on each link-up and
-/// closes the sessions on each link loss.
-pub async fn run<S: Service>(stack: Stack<'_>, settings: &NetworkSettings, server: &Server<'_, S>) -> ! {
-    let port = server.config().port;
-    loop {
-        stack.wait_link_up().await;
-        info!("link up");
-        select(stack.wait_link_down(), configure(stack, settings, port)).await;
-        warn!("link down: closing {} sessions", server.slots().open_count());
-        server.slots().evict_all();
-    }
-}
+/// How often the policy looks at the link and the address: a link loss
+/// closes the sessions at most this late.
+pub const LINK_POLL: Duration = Duration::from_millis(100);
 
-/// Sets the address for this link-up, then logs each change. Never returns.
-async fn configure(stack: Stack<'_>, settings: &NetworkSettings, port: u16) -> ! {
+/// Follows the link forever: configures the address on each link-up and
+/// closes the sessions on each link loss. One small state machine on a
+/// 100 ms tick ([`LINK_POLL`]): cheaper in flash than a future per event.
+pub async fn run<S: Service>(stack: Stack<'_>, settings: &NetworkSettings, server: &Server<'_, S>) -> ! {
+    let port = server.with_config(|config| config.port);
     let fallback = static_config(settings);
-    // The static address at once in static mode; else DHCP, with the
-    // static address (if any) after the timeout.
-    let (first, mut dhcp_timeout) = match (settings.mode, &fallback) {
-        (NetMode::Static, Some(config)) => (ConfigV4::Static(config.clone()), None),
-        (_, Some(_)) => {
-            (ConfigV4::Dhcp(DhcpConfig::default()), Some(Duration::from_secs(u64::from(settings.dhcp_timeout_s))))
-        }
-        (_, None) => (ConfigV4::Dhcp(DhcpConfig::default()), None),
-    };
-    stack.set_config_v4(first);
+    let mut ticker = Ticker::every(LINK_POLL);
+    let mut link = false;
+    let mut address = false;
+    // While DHCP runs with a fallback address: when the fallback applies.
+    let mut fallback_at = None;
     loop {
-        let up = match dhcp_timeout.take() {
-            Some(timeout) => with_timeout(timeout, stack.wait_config_up()).await.is_ok(),
-            None => {
-                stack.wait_config_up().await;
-                true
-            }
-        };
-        match (up, &fallback) {
-            (false, Some(config)) => {
+        let link_now = stack.is_link_up();
+        if link_now && !link {
+            info!("link up");
+            fallback_at = match (settings.mode, &fallback) {
+                (NetMode::Static, Some(config)) => {
+                    stack.set_config_v4(ConfigV4::Static(config.clone()));
+                    None
+                }
+                (_, fallback) => {
+                    stack.set_config_v4(ConfigV4::Dhcp(DhcpConfig::default()));
+                    let timeout = Duration::from_secs(u64::from(settings.dhcp_timeout_s));
+                    fallback.as_ref().map(|_| Instant::now() + timeout)
+                }
+            };
+        } else if link && !link_now {
+            warn!("link down: closing {} sessions", server.slots().open_count());
+            server.slots().evict_all();
+        }
+        link = link_now;
+
+        let address_now = stack.is_config_up();
+        if let (false, Some(at), Some(config)) = (address_now, fallback_at, &fallback) {
+            if Instant::now() >= at {
                 warn!("no DHCP lease after {} s: using the static address", settings.dhcp_timeout_s);
                 stack.set_config_v4(ConfigV4::Static(config.clone()));
-            }
-            _ => {
-                if let Some(config) = stack.config_v4() {
-                    info!("Modbus TCP server at {}:{}", Ip(config.address.address().octets()), port);
-                }
-                stack.wait_config_down().await;
-                warn!("address lost; waiting for DHCP");
+                fallback_at = None;
             }
         }
+        if address_now && !address {
+            fallback_at = None;
+            if let Some(config) = stack.config_v4() {
+                info!("Modbus TCP server at {}:{}", Ip(config.address.address().octets()), port);
+            }
+        } else if address && !address_now && link_now {
+            warn!("address lost; waiting for DHCP");
+        }
+        address = address_now;
+        ticker.next().await;
     }
 }
 
