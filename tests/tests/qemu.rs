@@ -237,22 +237,31 @@ fn coil_16_lights_led0_and_clearing_it_turns_it_off() {
 }
 
 #[test]
-fn the_driver_follows_the_link_down_and_up() {
+fn link_loss_closes_the_sessions_and_the_link_s_return_brings_the_server_back() {
     // QEMU's name for the board's NIC (`info network`).
     const NIC: &str = "lan9118.0";
     let qemu = Qemu::slirp();
     qemu.run(|| async {
-        let mut ctx = qemu.connect().await;
-        ctx.write_single_register(200, 0x1234).await.unwrap().unwrap();
-        ctx.disconnect().await.unwrap();
-    });
-    qemu.monitor(&format!("set_link {NIC} off"));
-    qemu.wait_for_log("lan9118: link down", Duration::from_secs(5));
-    qemu.monitor(&format!("set_link {NIC} on"));
-    qemu.run(|| async {
+        let mut held = qemu.connect().await;
+        held.write_single_register(200, 0x1234).await.unwrap().unwrap();
+        // The cable out: the driver sees it, and the session it held is
+        // closed (by the stack, as DHCP's address goes with the link, or else
+        // by the network policy; its RST cannot leave, the link is down).
+        qemu.monitor(&format!("set_link {NIC} off"));
+        qemu.wait_for_log("lan9118: link down", Duration::from_secs(5));
+        let log = qemu.wait_for_log("link down: closing", Duration::from_secs(5));
+        assert!(log.contains(": closing 10.0.2.2") || log.contains("link down: closing 1 sessions"), "{log}");
+        qemu.monitor(&format!("set_link {NIC} on"));
+        // The held connection is gone on the firmware's side: its next
+        // request is reset, or never answered.
+        let stale = tokio::time::timeout(Duration::from_secs(3), held.read_holding_registers(200, 1)).await;
+        assert!(!matches!(stale, Ok(Ok(Ok(_)))), "the session closed on link loss still answers: {stale:?}");
+        // A new client is served, with the map as it was.
         let mut ctx = qemu.connect().await;
         assert_eq!(ctx.read_holding_registers(200, 1).await.unwrap().unwrap(), [0x1234], "the image outlived the link");
     });
     let log = qemu.finish();
     assert_eq!(log.matches("lan9118: link up").count(), 2, "up at boot and again after set_link on:\n{log}");
+    // The network policy saw both link-ups (and asked DHCP again on the second).
+    assert_eq!(log.lines().filter(|line| line.ends_with("INFO  link up")).count(), 2, "{log}");
 }
