@@ -119,6 +119,12 @@ pub fn handler(data: &[u8]) {
         let before = image.clone();
         let outcome = handler::respond(frame, &mut reply, &mut image, &policy);
         let protocol_id = framer::protocol_id(frame).unwrap_or(0);
+        let whole = matches!(framer::next(frame), Next::Frame(_));
+        if !whole {
+            assert_eq!(outcome, Outcome::NotWhole, "bytes that are not one whole frame");
+            assert!(image == before, "bytes that are not a frame changed the map");
+            continue;
+        }
         let (len, exception) = match outcome {
             Outcome::Discard { protocol_id: said } => {
                 assert_ne!(protocol_id, mbap::MODBUS_PROTOCOL_ID, "a Modbus frame discarded");
@@ -127,6 +133,7 @@ pub fn handler(data: &[u8]) {
                 continue;
             }
             Outcome::Reply { len, exception, .. } => (len, exception),
+            Outcome::NotWhole => panic!("a whole frame {frame:02x?} refused as not whole"),
         };
         assert_eq!(protocol_id, mbap::MODBUS_PROTOCOL_ID, "a reply to protocol id {protocol_id}");
         assert!((mbap::HEADER_LEN + 2..=MAX_ADU_LEN).contains(&len), "reply length {len}");

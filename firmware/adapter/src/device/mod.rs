@@ -106,6 +106,7 @@ impl<'a> Device<'a> {
                 }
             }
             Outcome::Discard { .. } => Stats::count(&self.stats.bad_protocol),
+            Outcome::NotWhole => {}
         }
         outcome
     }

@@ -18,7 +18,7 @@ fn ask(shared: &Device<'_>, pdu: &[u8]) -> Vec<u8> {
     let mut reply = [0u8; MAX_ADU_LEN];
     match shared.respond(&adu(1, 0, 1, pdu), &mut reply, &Policy::default()) {
         Outcome::Reply { len, .. } => reply[7..len].to_vec(),
-        Outcome::Discard { .. } => Vec::new(),
+        Outcome::Discard { .. } | Outcome::NotWhole => Vec::new(),
     }
 }
 

@@ -33,18 +33,20 @@ pub enum Outcome {
     Reply { len: usize, function: FunctionCode, written: Written, exception: Option<Exception> },
     /// The protocol id is not Modbus: no reply, the connection carries on.
     Discard { protocol_id: u16 },
+    /// The bytes are not one whole frame (its length field and the buffer
+    /// disagree). A session never passes such bytes; were it to, it closes
+    /// the connection rather than answer what the bytes do not hold.
+    NotWhole,
 }
 
 /// Answers the request `frame` (exactly one whole MBAP frame) into `reply`.
 pub fn respond(frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], image: &mut Image, policy: &Policy) -> Outcome {
     let request = Frame::new_unchecked(frame);
+    let Ok(pdu) = request.pdu() else { return Outcome::NotWhole };
     let header = Header::parse(&request);
     if header.protocol_id != mbap::MODBUS_PROTOCOL_ID {
         return Outcome::Discard { protocol_id: header.protocol_id };
     }
-    // The session passes whole frames only, and their PDU always holds a
-    // function code; a frame that is not whole is refused as function 0.
-    let pdu = request.pdu().unwrap_or_default();
     let code = pdu.first().copied().unwrap_or(0);
     let function = FunctionCode::from(code);
     let mut out = Frame::new_unchecked(&mut reply[..]);

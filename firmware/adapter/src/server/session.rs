@@ -122,6 +122,7 @@ async fn run<T: Read + Write, S: Service>(
                     guarded(write_all(stream, out), deadline, server, slot).await??;
                 }
                 Outcome::Discard { protocol_id } => warn!("slot {}: discarded protocol id {}", slot, protocol_id),
+                Outcome::NotWhole => return Err(Error::Internal),
             }
             consumed += len;
             last_request = Instant::now();

@@ -163,6 +163,19 @@ fn unit_ids() {
 }
 
 #[test]
+fn bytes_that_are_not_one_whole_frame_are_not_answered() {
+    let mut image = Image::new();
+    let frame = adu(1, 0, 1, &[0x06, 0x00, 0x80, 0x00, 0x01]);
+    for cut in 0..frame.len() {
+        assert_eq!(answer(&mut image, &seed(), &frame[..cut]), Outcome::NotWhole, "{cut} bytes");
+    }
+    let mut short_length = frame.clone();
+    short_length[5] = 1; // a length field of 1: no function code
+    assert_eq!(answer(&mut image, &seed(), &short_length), Outcome::NotWhole);
+    assert_eq!(image, Image::new(), "nothing was written");
+}
+
+#[test]
 fn a_foreign_protocol_id_gets_no_reply() {
     let mut image = Image::new();
     let mut frame = adu(1, 0, 1, &[0x06, 0x00, 0x80, 0x00, 0x01]);
