@@ -1,4 +1,4 @@
-//! The one settings model (DEVICE.md section 1): every setting's type and
+//! The one settings model (docs/settings.md): every setting's type and
 //! default ([`Settings`]), and its key, rule, parser and when it applies
 //! ([`Field`], one table row each). Every front end goes through it:
 //!
@@ -105,7 +105,7 @@ pub const MAX_IDLE_TIMEOUT_S: u32 = 86_400;
 pub const MAX_WATCHDOG_MS: u32 = 86_400_000;
 
 impl Settings {
-    /// The defaults of DEVICE.md section 1, before a board or hal-sim sets its own.
+    /// The factory defaults (docs/settings.md), before a board or hal-sim sets its own.
     pub const DEFAULT: Self = Self {
         device: DeviceSettings { name: Name::UNSET },
         network: NetworkSettings { mode: NetMode::Dhcp, address: None, gateway: None, dhcp_timeout_s: 30 },
@@ -315,7 +315,7 @@ macro_rules! fields {
         }
 
         impl Field {
-            /// Every setting, in the order of DEVICE.md's table.
+            /// Every setting, in the order of docs/settings.md.
             pub const ALL: &[Field] = &[$(Field::$variant),*];
 
             /// Its group (`modbus`).

@@ -6,7 +6,7 @@ use core::fmt;
 
 use super::parse::{Invalid, Ipv4, ipv4, is, is_none, number_suffix};
 
-/// Longest device name (DEVICE.md section 1; also a DNS label's limit).
+/// Longest device name (docs/settings.md; also a DNS label's limit).
 pub const MAX_NAME_LEN: usize = 32;
 
 /// The device name: 1-32 of `a-z 0-9 -`, not starting or ending with `-`;
@@ -141,7 +141,7 @@ impl fmt::Display for NetMode {
     }
 }
 
-/// The robot controller to mirror (DEVICE.md section 4): `IPv4[:port][/unit]`.
+/// The robot controller to mirror (docs/settings.md, `robot.link`): `IPv4[:port][/unit]`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct RobotLink {
