@@ -89,14 +89,16 @@ pub async fn run<S: Service>(stack: Stack<'_>, settings: &NetworkSettings, serve
         }
         link = link_now;
 
-        let address_now = stack.is_config_up();
-        if let (false, Some(at), Some(config)) = (address_now, fallback_at, &fallback)
+        // DHCP gave nothing in time: the fallback applies (at once, so the
+        // address is logged below in this same tick, before any client).
+        if let (false, Some(at), Some(config)) = (stack.is_config_up(), fallback_at, &fallback)
             && Instant::now() >= at
         {
             warn!("no DHCP lease after {} s: using the static address", settings.dhcp_timeout_s);
             stack.set_config_v4(ConfigV4::Static(config.clone()));
             fallback_at = None;
         }
+        let address_now = stack.is_config_up();
         if address_now && !address {
             fallback_at = None;
             if let Some(config) = stack.config_v4() {
