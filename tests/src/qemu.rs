@@ -15,6 +15,14 @@
 //!   the firmware's port 502 (slirp's DHCP gives the firmware 10.0.2.15).
 //! - [`Qemu::tap`]: on the TAP of a new [`Namespace`] (no DHCP there: the
 //!   firmware falls back to 198.18.0.2/24 after 5 s).
+//! - [`Qemu::slirp_with_state`]: slirp on a state file the test keeps, so a
+//!   second boot finds what the first one saved.
+//!
+//! The board's PSRAM (QEMU's machine RAM, 16 MiB at `0x2100_0000`), where
+//! the firmware keeps its settings ([`SETTINGS`]), is a state file mapped
+//! with `share=on`: the guest's writes land in the file. Unless a test
+//! brings its own, each QEMU gets a fresh one in its own directory, erased
+//! (0xFF) like new flash ([`erased_state`]).
 //!
 //! QEMU always runs under `timeout`, writes its output (the firmware's defmt
 //! log, over semihosting) to a file rather than a pipe that could stall the
@@ -49,6 +57,14 @@ pub const LED0: u32 = 0x4002_8000;
 pub const MODBUS_PORT: u16 = 502;
 /// Registers 256-258: the firmware version.
 pub const VERSION_REGISTER: u16 = 256;
+/// The settings region (`SETTINGS` in firmware/mps2-an386/memory.x): the
+/// start of the PSRAM, the state file's first bytes.
+pub const SETTINGS: u32 = 0x2100_0000;
+/// The settings region's length.
+pub const SETTINGS_LEN: usize = 64 * 1024;
+/// The state file's length: QEMU's mps2 machine RAM (the PSRAM), which must
+/// be exactly 16 MiB.
+pub const STATE_LEN: usize = 16 * 1024 * 1024;
 /// A QEMU monitor command must answer within this time.
 const MONITOR_TIMEOUT: Duration = Duration::from_secs(10);
 /// How long `quit` may take.
@@ -166,6 +182,12 @@ pub fn log_failures(decoded: &str) -> Vec<&str> {
         .collect()
 }
 
+/// Writes a fresh state file at `path`: [`STATE_LEN`] bytes of 0xFF, erased
+/// flash, the factory state (QEMU would make a missing file zero-filled).
+pub fn erased_state(path: &Path) -> std::io::Result<()> {
+    std::fs::write(path, vec![0xFF; STATE_LEN])
+}
+
 /// How QEMU reaches the firmware's network.
 enum Network<'a> {
     Slirp { port: u16 },
@@ -179,17 +201,30 @@ pub struct Qemu {
     child: Mutex<Child>,
     dir: PathBuf,
     elf: PathBuf,
+    state: PathBuf,
     addr: SocketAddr,
     ns: Option<Namespace>,
 }
 
 impl Qemu {
-    /// Boots the image with slirp and a free port of 127.0.0.1 forwarded to 502.
+    /// Boots the image with slirp and a free port of 127.0.0.1 forwarded to
+    /// 502, on a fresh (erased) state file.
     pub fn slirp() -> Self {
+        Self::slirp_on(None)
+    }
+
+    /// Boots the image as [`Qemu::slirp`] does, on the state file `state`
+    /// (made erased if it is missing), which outlives this QEMU: boot again
+    /// on it to see what the firmware saved.
+    pub fn slirp_with_state(state: &Path) -> Self {
+        Self::slirp_on(Some(state))
+    }
+
+    fn slirp_on(state: Option<&Path>) -> Self {
         let mut last_error = String::new();
         for _ in 0..5 {
             let port = free_port();
-            match Self::boot(Network::Slirp { port }, SocketAddr::from((Ipv4Addr::LOCALHOST, port))) {
+            match Self::boot(Network::Slirp { port }, SocketAddr::from((Ipv4Addr::LOCALHOST, port)), state) {
                 Ok(qemu) => return qemu,
                 // Another program took the port between our look and QEMU's bind.
                 Err(error) if error.contains("host forwarding") => last_error = error,
@@ -204,13 +239,13 @@ impl Qemu {
     pub fn tap() -> Self {
         let ns = Namespace::new().expect("a network namespace with a TAP");
         let ip: Ipv4Addr = DEVICE_IP.parse().expect("DEVICE_IP is an IPv4 address");
-        let mut qemu = Self::boot(Network::Tap(&ns), SocketAddr::from((ip, MODBUS_PORT)))
+        let mut qemu = Self::boot(Network::Tap(&ns), SocketAddr::from((ip, MODBUS_PORT)), None)
             .unwrap_or_else(|error| panic!("QEMU did not start:\n{error}"));
         qemu.ns = Some(ns);
         qemu
     }
 
-    fn boot(network: Network<'_>, addr: SocketAddr) -> Result<Self, String> {
+    fn boot(network: Network<'_>, addr: SocketAddr, state: Option<&Path>) -> Result<Self, String> {
         static NEXT: AtomicU32 = AtomicU32::new(0);
         let elf = image();
         let dir = std::env::temp_dir().join(format!(
@@ -219,6 +254,10 @@ impl Qemu {
             NEXT.fetch_add(1, Ordering::Relaxed)
         ));
         std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        let state = state.map_or_else(|| dir.join("psram.state"), Path::to_path_buf);
+        if !state.exists() {
+            erased_state(&state).map_err(|e| format!("{}: {e}", state.display()))?;
+        }
         let nic = match network {
             Network::Slirp { port } => {
                 format!("user,model=lan9118,restrict=on,hostfwd=tcp:127.0.0.1:{port}-:{MODBUS_PORT}")
@@ -232,14 +271,14 @@ impl Qemu {
         let monitor = dir.join("monitor.sock");
         command
             .args(["-k", "5", &QEMU_TIMEOUT.as_secs().to_string()])
-            .args(qemu_args(&elf, &nic))
+            .args(qemu_args(&elf, &nic, &state))
             .arg("-monitor")
             .arg(format!("unix:{},server=on,wait=off", monitor.display()))
             .stdin(Stdio::null())
             .stdout(file(&dir.join("firmware.log"))?)
             .stderr(file(&dir.join("qemu.stderr"))?);
         let child = command.spawn().map_err(|e| format!("`timeout qemu-system-arm` does not start: {e}"))?;
-        let qemu = Self { child: Mutex::new(child), dir, elf, addr, ns: None };
+        let qemu = Self { child: Mutex::new(child), dir, elf, state, addr, ns: None };
         // The monitor answers once QEMU has finished setting up (slirp's
         // forwarding included); if setting up failed, QEMU has exited.
         let deadline = Instant::now() + MONITOR_TIMEOUT;
@@ -265,6 +304,11 @@ impl Qemu {
     /// The image QEMU runs.
     pub fn elf(&self) -> &Path {
         &self.elf
+    }
+
+    /// The state file QEMU maps over the PSRAM.
+    pub fn state(&self) -> &Path {
+        &self.state
     }
 
     /// QEMU's exit status, if it has exited.
@@ -420,12 +464,19 @@ impl Drop for Qemu {
     }
 }
 
-/// QEMU's arguments for the image, apart from the monitor.
-pub fn qemu_args(elf: &Path, nic: &str) -> Vec<String> {
+/// QEMU's arguments for the image, apart from the monitor: the board with
+/// its PSRAM mapped to the file `state` (`share=on`: the guest's writes go
+/// to the file), the NIC, the image.
+pub fn qemu_args(elf: &Path, nic: &str, state: &Path) -> Vec<String> {
+    // QEMU's option syntax doubles a comma inside a value.
+    let state = state.display().to_string().replace(',', ",,");
+    let psram = format!("memory-backend-file,id=psram,size={STATE_LEN},mem-path={state},share=on");
     [
         "qemu-system-arm",
         "-M",
-        "mps2-an386",
+        "mps2-an386,memory-backend=psram",
+        "-object",
+        &psram,
         "-cpu",
         "cortex-m4",
         "-display",
@@ -509,10 +560,47 @@ mod tests {
 
     #[test]
     fn qemu_args_name_the_board_and_the_image() {
-        let args = qemu_args(Path::new("/x/fw.elf"), "user,model=lan9118");
+        let args = qemu_args(Path::new("/x/fw.elf"), "user,model=lan9118", Path::new("/x/psram.state"));
         assert_eq!(args[0], "qemu-system-arm");
-        assert!(args.windows(2).any(|w| w == ["-M", "mps2-an386"]));
+        assert!(args.windows(2).any(|w| w == ["-M", "mps2-an386,memory-backend=psram"]));
         assert!(args.windows(2).any(|w| w == ["-nic", "user,model=lan9118"]));
         assert_eq!(args.last().map(String::as_str), Some("/x/fw.elf"));
+    }
+
+    #[test]
+    fn qemu_args_map_the_psram_to_the_state_file_shared() {
+        let args = qemu_args(Path::new("/x/fw.elf"), "user", Path::new("/x/psram.state"));
+        let object = "memory-backend-file,id=psram,size=16777216,mem-path=/x/psram.state,share=on";
+        assert!(args.windows(2).any(|w| w == ["-object", object]), "{args:?}");
+        assert_eq!(
+            args.iter().filter(|a| a.contains("psram")).count(),
+            2,
+            "one backend, named by the machine: {args:?}"
+        );
+    }
+
+    #[test]
+    fn qemu_args_double_a_comma_in_the_state_file_s_path() {
+        let args = qemu_args(Path::new("/x/fw.elf"), "user", Path::new("/x/a,b/s.state"));
+        assert!(args.iter().any(|a| a.contains(",mem-path=/x/a,,b/s.state,share=on")), "{args:?}");
+    }
+
+    #[test]
+    fn an_erased_state_is_16_mib_of_ff() {
+        let path = std::env::temp_dir().join(format!("mbqemu-erased-{}.state", std::process::id()));
+        erased_state(&path).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        std::fs::remove_file(&path).unwrap();
+        assert_eq!(bytes.len(), STATE_LEN);
+        assert!(bytes.iter().all(|&b| b == 0xFF));
+    }
+
+    #[test]
+    fn the_settings_region_is_where_the_image_s_memory_map_puts_it() {
+        let map = std::fs::read_to_string(workspace().join("firmware/mps2-an386/memory.x")).unwrap();
+        let line = map.lines().find(|l| l.trim_start().starts_with("SETTINGS ") && l.contains("ORIGIN"));
+        let line = line.expect("a SETTINGS region in the MEMORY block");
+        let fields: String = line.split(':').nth(1).unwrap().split_whitespace().collect();
+        assert_eq!(fields, format!("ORIGIN={SETTINGS:#010x},LENGTH={}K", SETTINGS_LEN / 1024));
     }
 }

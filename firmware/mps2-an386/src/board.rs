@@ -5,6 +5,7 @@
 //! |---|---|
 //! | code (ZBT SSRAM1, writable in QEMU) | `0x0000_0000`, 4 MiB (`memory.x`) |
 //! | data, stack (ZBT SSRAM2/3) | `0x2000_0000`, 4 MiB |
+//! | settings (PSRAM, file-backed by the QEMU scripts) | `0x2100_0000`, 64 KiB ([`settings_region`]) |
 //! | FPGA IO `LED0` (2 user LEDs) | `0x4002_8000` |
 //! | LAN9118 Ethernet | `0x4020_0000`, NVIC IRQ 13 |
 //!
@@ -52,6 +53,7 @@ impl adapter::io::InputPins for RamInputs {
 
 mod hw {
     use core::ptr;
+    use core::sync::atomic::{AtomicBool, Ordering};
     use core::task::Waker;
 
     use cortex_m::interrupt::InterruptNumber;
@@ -83,6 +85,39 @@ mod hw {
         let peripherals = cortex_m::Peripherals::take()?;
         systick::start(peripherals.SYST);
         Some(Lan9118::new(Mmio { _private: () }))
+    }
+
+    /// Set once [`settings_region`] has handed the region out.
+    static SETTINGS_TAKEN: AtomicBool = AtomicBool::new(false);
+
+    /// The settings region, once (later calls return `None`): memory.x's
+    /// `SETTINGS`, the first 64 KiB of the PSRAM at `0x2100_0000`, which the
+    /// QEMU scripts map to a state file so that what is written here is
+    /// there again at the next boot (docs/qemu.md). The settings store puts
+    /// flash rules on it (erase to 0xFF, writes clear bits).
+    ///
+    /// A state file the scripts made reads 0xFF: erased flash, no settings.
+    /// All zeros is RAM no file backs (QEMU started without the scripts'
+    /// `memory-backend` options, or QEMU created the file itself): the store
+    /// should take it as blank, not corrupt, erase it to 0xFF and log that
+    /// the settings will not outlive QEMU unless it runs with a state file.
+    #[expect(dead_code, reason = "the settings store (adapter::storage) is plugged in next and takes it")]
+    pub fn settings_region() -> Option<&'static mut [u8]> {
+        // memory.x's symbols: the region's first byte and the byte after it.
+        unsafe extern "C" {
+            static mut __settings_start: u8;
+            static __settings_end: u8;
+        }
+        if SETTINGS_TAKEN.swap(true, Ordering::AcqRel) {
+            return None;
+        }
+        let start = &raw mut __settings_start;
+        let len = (&raw const __settings_end as usize).saturating_sub(start as usize);
+        // SAFETY: memory.x reserves [start, start + len) for the settings
+        // alone (no section is placed there); it is RAM for as long as QEMU
+        // runs, any byte pattern is a valid u8, and the flag above hands it
+        // out once, so no other reference to it exists.
+        Some(unsafe { core::slice::from_raw_parts_mut(start, len) })
     }
 
     /// The LAN9118's registers in the memory map, and its interrupt line.

@@ -9,6 +9,7 @@
 //!   inputs: the chip has only 16 EXTI lines).
 //! - [`leds`]: link, Modbus traffic and fault on LD1-LD3.
 //! - [`safety`]: the independent watchdog, the HardFault handler, the reset cause.
+//! - [`flash`]: the settings flash, bank 2's sectors 12 and 13, outside the image.
 //!
 //! The pin table with header positions is in `docs/nucleo-f429zi.md`.
 
@@ -28,13 +29,14 @@ use embassy_stm32::{bind_interrupts, eth, rng};
 use static_cell::StaticCell;
 
 use crate::pins::{self, CaptureTimer, Edges, INPUT_PULL, output};
-use crate::{ModbusServer, leds, net, safety};
+use crate::{ModbusServer, flash, leds, net, safety};
 use adapter::device::Device;
 
 bind_interrupts!(
     /// Every interrupt the board uses, bound to its handler.
     pub struct Irqs {
         ETH => eth::InterruptHandler;
+        FLASH => embassy_stm32::flash::InterruptHandler;
         HASH_RNG => rng::InterruptHandler<RNG>;
         EXTI0 => pins::EdgeInterrupt;
         EXTI1 => pins::EdgeInterrupt;
@@ -89,6 +91,9 @@ pub struct Board {
     pub inputs: pins::Inputs,
     /// What the board's own tasks run on; see [`spawn`].
     pub tasks: Tasks,
+    /// The flash the settings are saved in (memory.x's `SETTINGS`).
+    #[expect(dead_code, reason = "the settings store (adapter::storage) is plugged in next and takes it")]
+    pub settings: flash::SettingsFlash,
 }
 
 impl core::fmt::Debug for Board {
@@ -111,7 +116,8 @@ impl core::fmt::Debug for Tasks {
 }
 
 /// Brings the board up: clocks, watchdog (running from here on), outputs
-/// off, inputs with their edge interrupts, ADC, DAC, RNG and Ethernet.
+/// off, inputs with their edge interrupts, ADC, DAC, RNG, Ethernet and the
+/// settings flash.
 pub fn init() -> Board {
     let p = embassy_stm32::init(clocks());
     let reset = safety::take_reset_cause();
@@ -213,7 +219,9 @@ pub fn init() -> Board {
         p.PC1,
     );
 
-    Board { ethernet, mac, seed, outputs, inputs, tasks: Tasks { watchdog, edges, leds } }
+    let settings = flash::settings_flash(p.FLASH);
+
+    Board { ethernet, mac, seed, outputs, inputs, tasks: Tasks { watchdog, edges, leds }, settings }
 }
 
 /// Spawns the board's own tasks: the watchdog feeder, the network runner,

@@ -7,6 +7,7 @@
 #![no_main]
 
 mod board;
+mod flash;
 mod leds;
 mod net;
 mod pins;
