@@ -62,9 +62,10 @@ fn version_registers_report_the_firmware_version() {
         assert_eq!(version, qemu::firmware_version());
         assert_eq!(ctx.read_holding_registers(ROBOT_STATE, 1).await.unwrap().unwrap(), [NOT_READY]);
     });
-    let log = qemu.finish();
-    // slirp's DHCP server gave the firmware its address.
-    assert!(log.contains("Modbus TCP server at 10.0.2.15:502"), "{log}");
+    // slirp's DHCP server gave the firmware its address; the network policy
+    // logs it at its next 100 ms tick, which may come after the first client.
+    qemu.wait_for_log("Modbus TCP server at 10.0.2.15:502", Duration::from_secs(2));
+    qemu.finish();
 }
 
 #[test]
