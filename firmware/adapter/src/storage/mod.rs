@@ -1,0 +1,7 @@
+//! Settings that live on the device (DEVICE.md section 1), over any
+//! `embedded-storage-async` NOR flash a board gives.
+//!
+//! - [`flash`]: [`RuleFlash`](flash::RuleFlash), a NOR flash with real flash
+//!   rules over a byte slice (QEMU's PSRAM, hal-sim's state file, tests).
+
+pub mod flash;
