@@ -7,8 +7,8 @@
 //! - [`server`]: the Modbus TCP server: request handling, sessions over any
 //!   `embedded-io-async` stream, connection slots, access, the embassy-net listener.
 //! - [`settings`]: the one settings model, and [`net`]: the boards' network policy.
-//! - [`storage`]: settings saved on the device, over any
-//!   `embedded-storage-async` NOR flash.
+//! - [`storage`]: the settings and the admin password saved on the device,
+//!   power-fail safe, over any `embedded-storage-async` NOR flash.
 //!
 //! The library is `no_std` and allocation-free; every size is a named constant.
 #![cfg_attr(not(test), no_std)]

@@ -100,6 +100,13 @@ impl<'a, const WRITE_SIZE: usize, const ERASE_SIZE: usize> RuleFlash<'a, WRITE_S
         self.memory
     }
 
+    /// The bytes under the flash, to change behind its back: a test's
+    /// interrupted erase.
+    #[cfg(test)]
+    pub(crate) fn memory_mut(&mut self) -> &mut [u8] {
+        self.memory
+    }
+
     /// Bytes the flash holds: the whole pages of its memory.
     pub const fn capacity(&self) -> usize {
         self.memory.len() - self.memory.len() % ERASE_SIZE
