@@ -2,8 +2,8 @@
 //! connection for a session, and the checks every reply must pass.
 //!
 //! Each target is a few lines around one function here ([`session`],
-//! [`handler`], [`codec`]), so the same checks also run as plain tests over
-//! the seed inputs (`cargo test` in this workspace).
+//! [`handler`], [`codec`], [`store`]), so the same checks also run as plain
+//! tests over the seed inputs (`cargo test` in this workspace).
 //!
 //! The checks are those of the library's session property test
 //! (`firmware/adapter/src/server/session/properties.rs`), against the same
@@ -16,6 +16,7 @@
 pub mod check;
 pub mod connection;
 pub mod input;
+pub mod storage;
 
 use core::pin::pin;
 use core::task::Poll;
@@ -31,6 +32,7 @@ use test_support::reply::Answer;
 
 use check::Pins;
 pub use input::{HandlerInput, SessionInput};
+pub use storage::{StoreInput, store};
 
 /// The server's configuration as the tests set it: no idle timeout (the mock
 /// clock never moves, but a session must not depend on that), the policy under test.

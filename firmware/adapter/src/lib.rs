@@ -7,6 +7,8 @@
 //! - [`server`]: the Modbus TCP server: request handling, sessions over any
 //!   `embedded-io-async` stream, connection slots, access, the embassy-net listener.
 //! - [`settings`]: the one settings model, and [`net`]: the boards' network policy.
+//! - [`storage`]: the settings and the admin password saved on the device,
+//!   power-fail safe, over any `embedded-storage-async` NOR flash.
 //!
 //! The library is `no_std` and allocation-free; every size is a named constant.
 #![cfg_attr(not(test), no_std)]
@@ -22,6 +24,7 @@ pub mod map;
 pub mod net;
 pub mod server;
 pub mod settings;
+pub mod storage;
 
 /// The wire codec this core speaks (its own crate: no map, no async).
 pub use modbus;

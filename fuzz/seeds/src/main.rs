@@ -1,8 +1,9 @@
 //! Writes the seed corpora of the fuzz targets from the codec fixtures
-//! (`test_support::fixtures::PYMODBUS`, bytes captured from pymodbus):
+//! (`test_support::fixtures::PYMODBUS`, bytes captured from pymodbus), and
+//! the store's from records and real saves (`firmware_fuzz::storage::seeds`):
 //!
 //! ```text
-//! cargo run -p fuzz-seeds -- DIR    # writes DIR/session, DIR/handler, DIR/codec
+//! cargo run -p fuzz-seeds -- DIR    # writes DIR/session, DIR/handler, DIR/codec, DIR/store
 //! ```
 //!
 //! Each seed runs through its target's checks before it is written, so a
@@ -23,12 +24,14 @@ fn main() {
         write(&dir.join("session"), &session_seeds(), firmware_fuzz::session),
         write(&dir.join("handler"), &handler_seeds(), firmware_fuzz::handler),
         write(&dir.join("codec"), &codec_seeds(), firmware_fuzz::codec),
+        write(&dir.join("store"), &firmware_fuzz::storage::seeds(), firmware_fuzz::store),
     ];
     println!(
-        "fuzz-seeds: {} session, {} handler, {} codec seeds in {}",
+        "fuzz-seeds: {} session, {} handler, {} codec, {} store seeds in {}",
         written[0],
         written[1],
         written[2],
+        written[3],
         dir.display()
     );
 }
