@@ -64,7 +64,9 @@ pub async fn listen<S: Service>(stack: Stack<'_>, server: &Server<'_, S>, slot: 
         }
         let read_only = !may_write;
         info!("slot {}: connection from {}{}", slot, peer, if read_only { " (read-only)" } else { "" });
-        if let Some(victim) = server.slots().open(slot, max_connections, Instant::now(), read_only) {
+        if let Some(victim) =
+            server.slots().open(slot, max_connections, Instant::now(), peer.address.unwrap_or_default(), read_only)
+        {
             Stats::count(&server.stats().evictions);
             info!("slot {}: all sessions busy, closing the idlest (slot {})", slot, victim);
         }

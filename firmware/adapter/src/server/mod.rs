@@ -143,11 +143,17 @@ impl<'a, S: Service> Server<'a, S> {
         self.config.lock(|config| f(&config.borrow()))
     }
 
-    /// Puts `config` in force for every request from now on. The port
-    /// applies to the listeners after the next reboot.
+    /// Puts `config` in force for every request from now on, and closes
+    /// the sessions it no longer admits (outside its allow-lists, beyond its
+    /// `max_connections`). The port applies to the listeners after the next
+    /// reboot.
     pub fn set_config(&self, config: Config) {
         let config = Self::clamped(config);
         self.config.lock(|cell| *cell.borrow_mut() = config);
+        let closed = self.slots.enforce(&config.access, config.max_connections);
+        if closed > 0 {
+            info!("new configuration: closing {} sessions", closed);
+        }
     }
 
     /// The session slots.

@@ -9,15 +9,17 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::Instant;
 
-use super::SOCKET_POOL;
+use super::{Access, SOCKET_POOL};
 
 /// Which slot (and listener task) a session runs in: `0..SOCKET_POOL`.
 pub type SlotId = usize;
 
-/// An open session: its last request and what its client may do.
+/// An open session: its last request, its client's address and what the
+/// client may do.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct Entry {
     last: Instant,
+    peer: [u8; 4],
     read_only: bool,
 }
 
@@ -44,17 +46,17 @@ impl Slots {
         Self { active: Mutex::new(RefCell::new([None; SOCKET_POOL])), evict: [const { Signal::new() }; SOCKET_POOL] }
     }
 
-    /// Opens slot `id` for a new session (`read_only`: its client may not
-    /// write). If that makes more than `max` sessions, the one idle the
+    /// Opens slot `id` for a new session from `peer` (`read_only`: it may
+    /// not write). If that makes more than `max` sessions, the one idle the
     /// longest is told to close; its id is returned.
-    pub fn open(&self, id: SlotId, max: usize, now: Instant, read_only: bool) -> Option<SlotId> {
+    pub fn open(&self, id: SlotId, max: usize, now: Instant, peer: [u8; 4], read_only: bool) -> Option<SlotId> {
         if let Some(signal) = self.evict.get(id) {
             signal.reset();
         }
         let victim = self.active.lock(|active| {
             let mut active = active.borrow_mut();
             let slot = active.get_mut(id)?;
-            *slot = Some(Entry { last: now, read_only });
+            *slot = Some(Entry { last: now, peer, read_only });
             let open = active.iter().filter(|s| s.is_some()).count();
             if open <= max {
                 return None;
@@ -99,6 +101,45 @@ impl Slots {
         }
     }
 
+    /// Closes the sessions a new configuration no longer admits: clients
+    /// outside `access`'s connect list, clients that could write and are
+    /// outside its write list now (they may come back, read-only), and the
+    /// idlest sessions beyond `max`. Returns how many were told to close.
+    pub fn enforce(&self, access: &Access, max: usize) -> usize {
+        let mut closing = [false; SOCKET_POOL];
+        self.active.lock(|active| {
+            let active = active.borrow();
+            let mut kept = 0;
+            for ((entry, close), _) in active.iter().zip(closing.iter_mut()).zip(0..) {
+                if let Some(entry) = entry {
+                    let admitted = access.may_connect(entry.peer) && (entry.read_only || access.may_write(entry.peer));
+                    *close = !admitted;
+                    kept += usize::from(admitted);
+                }
+            }
+            // Beyond the limit: the idlest of those kept go first.
+            while kept > max {
+                let idlest = active
+                    .iter()
+                    .zip(closing.iter())
+                    .enumerate()
+                    .filter_map(|(id, (entry, close))| entry.filter(|_| !close).map(|entry| (entry.last, id)))
+                    .min();
+                let Some((_, id)) = idlest else { break };
+                if let Some(close) = closing.get_mut(id) {
+                    *close = true;
+                }
+                kept -= 1;
+            }
+        });
+        let mut told = 0;
+        for (signal, _) in self.evict.iter().zip(closing).filter(|&(_, close)| close) {
+            signal.signal(());
+            told += 1;
+        }
+        told
+    }
+
     /// When the newest request (or connection) on any open session arrived.
     pub fn last_activity(&self) -> Option<Instant> {
         self.active.lock(|active| active.borrow().iter().flatten().map(|entry| entry.last).max())
@@ -127,18 +168,53 @@ impl Slots {
 mod tests {
     use super::*;
 
+    const PEER: [u8; 4] = [198, 18, 0, 1];
+
     fn at(ms: u64) -> Instant {
         Instant::from_millis(ms)
+    }
+
+    #[test]
+    fn a_new_configuration_closes_who_it_no_longer_admits() {
+        let slots = Slots::new();
+        slots.open(0, 8, at(1), [10, 0, 0, 1], false);
+        slots.open(1, 8, at(2), [10, 0, 0, 2], true);
+        slots.open(2, 8, at(3), [10, 0, 1, 3], false);
+        slots.open(3, 8, at(4), [10, 0, 0, 4], false);
+        let only =
+            |address, prefix| crate::server::AllowList::EMPTY.with(crate::server::Network::new(address, prefix)?);
+        // Writers outside 10.0.0.0/24 must go; the read-only client may stay.
+        let access = Access { connect: None, write: only([10, 0, 0, 0], 24) };
+        assert_eq!(slots.enforce(&access, 8), 1);
+        assert!(slots.evict[2].signaled() && !slots.evict[0].signaled() && !slots.evict[1].signaled());
+        slots.close(2);
+        // Nobody outside 10.0.0.0/31 may connect: 10.0.0.2 and 10.0.0.4 go.
+        let access = Access { connect: only([10, 0, 0, 0], 31), write: None };
+        assert_eq!(slots.enforce(&access, 8), 2);
+        assert!(slots.evict[1].signaled() && slots.evict[3].signaled() && !slots.evict[0].signaled());
+    }
+
+    #[test]
+    fn a_lower_limit_closes_the_idlest() {
+        let slots = Slots::new();
+        for id in 0..4 {
+            slots.open(id, 8, at(10 * id as u64), PEER, false);
+        }
+        slots.touch(0, at(100));
+        assert_eq!(slots.enforce(&Access::OPEN, 2), 2);
+        let closed: Vec<bool> = (0..4).map(|id| slots.evict[id].signaled()).collect();
+        assert_eq!(closed, [false, true, true, false], "1 and 2 were the idlest");
+        assert_eq!(slots.enforce(&Access::OPEN, 8), 0);
     }
 
     #[test]
     fn the_idlest_session_makes_room() {
         let slots = Slots::new();
         for id in 0..8 {
-            assert_eq!(slots.open(id, 8, at(100 + id as u64), false), None);
+            assert_eq!(slots.open(id, 8, at(100 + id as u64), PEER, false), None);
         }
         slots.touch(0, at(1_000)); // slot 1 is now the idlest
-        assert_eq!(slots.open(8, 8, at(2_000), false), Some(1));
+        assert_eq!(slots.open(8, 8, at(2_000), PEER, false), Some(1));
         assert!(slots.evict[1].signaled());
         assert!(!slots.evict[0].signaled());
         slots.close(1);
@@ -148,10 +224,10 @@ mod tests {
     #[test]
     fn a_reused_slot_forgets_an_old_eviction() {
         let slots = Slots::new();
-        slots.open(0, 1, at(0), false);
-        assert_eq!(slots.open(1, 1, at(10), false), Some(0));
+        slots.open(0, 1, at(0), PEER, false);
+        assert_eq!(slots.open(1, 1, at(10), PEER, false), Some(0));
         slots.close(0);
-        assert_eq!(slots.open(0, 1, at(20), false), Some(1));
+        assert_eq!(slots.open(0, 1, at(20), PEER, false), Some(1));
         assert!(!slots.evict[0].signaled(), "slot 0's new session is not evicted");
         assert!(slots.evict[1].signaled());
     }
@@ -159,12 +235,12 @@ mod tests {
     #[test]
     fn each_session_keeps_its_clients_rights() {
         let slots = Slots::new();
-        slots.open(0, 8, at(0), true);
-        slots.open(1, 8, at(0), false);
+        slots.open(0, 8, at(0), PEER, true);
+        slots.open(1, 8, at(0), PEER, false);
         assert!(slots.read_only(0) && !slots.read_only(1));
         assert!(!slots.read_only(2) && !slots.read_only(SOCKET_POOL), "no session, no restriction to report");
         slots.close(0);
-        slots.open(0, 8, at(1), false);
+        slots.open(0, 8, at(1), PEER, false);
         assert!(!slots.read_only(0), "a new client on the same slot has its own rights");
     }
 
@@ -172,8 +248,8 @@ mod tests {
     fn evict_all_reaches_open_sessions_only() {
         let slots = Slots::new();
         assert_eq!(slots.last_activity(), None);
-        slots.open(0, 8, at(5), false);
-        slots.open(2, 8, at(7), false);
+        slots.open(0, 8, at(5), PEER, false);
+        slots.open(2, 8, at(7), PEER, false);
         slots.touch(0, at(9));
         assert_eq!(slots.last_activity(), Some(at(9)));
         slots.evict_all();
@@ -187,7 +263,7 @@ mod tests {
     #[test]
     fn out_of_range_ids_are_ignored() {
         let slots = Slots::new();
-        assert_eq!(slots.open(SOCKET_POOL, 1, at(0), false), None);
+        assert_eq!(slots.open(SOCKET_POOL, 1, at(0), PEER, false), None);
         slots.touch(SOCKET_POOL, at(0));
         slots.close(SOCKET_POOL);
         assert_eq!(slots.open_count(), 0);

@@ -219,11 +219,11 @@ fn the_idlest_session_is_closed_to_make_room() {
     let (_wire_b, mut end_b) = Wire::new();
     let (_wire_c, mut end_c) = Wire::new();
 
-    assert_eq!(slots.open(0, 2, Instant::now(), false), None);
+    assert_eq!(slots.open(0, 2, Instant::now(), [198, 18, 0, 1], false), None);
     let mut a = pin!(serve(&mut end_a, shared, 0));
     assert!(poll_once(a.as_mut()).is_pending());
     clock.advance(Duration::from_millis(100));
-    assert_eq!(slots.open(1, 2, Instant::now(), false), None);
+    assert_eq!(slots.open(1, 2, Instant::now(), [198, 18, 0, 1], false), None);
     let mut b = pin!(serve(&mut end_b, shared, 1));
     assert!(poll_once(b.as_mut()).is_pending());
 
@@ -233,7 +233,7 @@ fn the_idlest_session_is_closed_to_make_room() {
     assert!(poll_once(a.as_mut()).is_pending());
     clock.advance(Duration::from_secs(1));
 
-    assert_eq!(slots.open(2, 2, Instant::now(), false), Some(1));
+    assert_eq!(slots.open(2, 2, Instant::now(), [198, 18, 0, 1], false), Some(1));
     let mut c = pin!(serve(&mut end_c, shared, 2));
     assert!(poll_once(c.as_mut()).is_pending());
     assert_eq!(poll_once(b.as_mut()), Poll::Ready(Err(Error::Evicted)));
