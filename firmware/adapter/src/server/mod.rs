@@ -20,7 +20,7 @@ pub use access::{Access, AllowList, Network};
 pub use handler::{Outcome, Policy};
 pub use listener::{CLOSE_TIMEOUT, SOCKET_RX_LEN, SOCKET_TX_LEN, listen};
 pub use session::{Error, SESSION_BUFFER_LEN, serve};
-pub use slots::{SlotId, Slots};
+pub use slots::{Session, SlotId, Slots};
 
 pub use crate::device::{Counters, SafeState, Stats, Watchdog};
 use crate::modbus::mbap::MAX_ADU_LEN;
