@@ -7,6 +7,7 @@
 //! - [`server`]: the Modbus TCP server: request handling, sessions over any
 //!   `embedded-io-async` stream, connection slots, access, the embassy-net listener.
 //! - [`settings`]: the one settings model, and [`net`]: the boards' network policy.
+//! - `http` (feature `http`): the HTTP JSON API over the settings, the server and the device.
 //!
 //! The library is `no_std` and allocation-free; every size is a named constant.
 #![cfg_attr(not(test), no_std)]
@@ -17,6 +18,8 @@ pub mod fmt;
 
 pub mod analog;
 pub mod device;
+#[cfg(feature = "http")]
+pub mod http;
 pub mod io;
 pub mod map;
 pub mod net;

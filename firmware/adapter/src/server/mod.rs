@@ -18,6 +18,8 @@ use embassy_time::Duration;
 
 pub use access::{Access, AllowList, Network};
 pub use handler::{Outcome, Policy};
+#[cfg(feature = "http")]
+pub(crate) use listener::Peer;
 pub use listener::{CLOSE_TIMEOUT, SOCKET_RX_LEN, SOCKET_TX_LEN, listen};
 pub use session::{Error, SESSION_BUFFER_LEN, serve};
 pub use slots::{Session, SlotId, Slots};
