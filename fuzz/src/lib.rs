@@ -2,7 +2,7 @@
 //! connection for a session, and the checks every reply must pass.
 //!
 //! Each target is a few lines around one function here ([`session`],
-//! [`handler`], [`codec`]), so the same checks also run as plain tests over
+//! [`handler`], [`codec`], [`http`]), so the same checks also run as plain tests over
 //! the seed inputs (`cargo test` in this workspace).
 //!
 //! The checks are those of the library's session property test
@@ -15,6 +15,7 @@
 
 pub mod check;
 pub mod connection;
+mod http;
 pub mod input;
 
 use core::pin::pin;
@@ -30,7 +31,8 @@ use test_support::framer::{self, Next, split_replies};
 use test_support::reply::Answer;
 
 use check::Pins;
-pub use input::{HandlerInput, SessionInput};
+pub use http::http;
+pub use input::{HandlerInput, HttpInput, SessionInput};
 
 /// The server's configuration as the tests set it: no idle timeout (the mock
 /// clock never moves, but a session must not depend on that), the policy under test.
