@@ -102,6 +102,55 @@ impl<'a> HandlerInput<'a> {
     }
 }
 
+/// The http target's flags. Bit 0: an admin password is set ([`PASSWORD`]).
+pub const HTTP_PASSWORD_SET: u8 = 1 << 0;
+/// Bit 1: the client is outside `modbus.allow_write`.
+pub const HTTP_OUTSIDE: u8 = 1 << 1;
+/// Bit 2: every read is `Pending` once before it returns data.
+pub const HTTP_STALL_READS: u8 = 1 << 2;
+/// Bit 3: every write is `Pending` once, then takes only part of the bytes.
+pub const HTTP_PARTIAL_WRITES: u8 = 1 << 3;
+/// Bit 4: the backend fails to save (500: nothing changes).
+pub const HTTP_SAVE_FAILS: u8 = 1 << 4;
+/// Bit 5: the client keeps its side open after its bytes (the request
+/// deadline ends a request left incomplete).
+pub const HTTP_KEEP_OPEN: u8 = 1 << 5;
+
+/// The admin password when [`HTTP_PASSWORD_SET`].
+pub const PASSWORD: &str = "s3cret-pass";
+
+/// The http target's input:
+///
+/// ```text
+/// | flags (1) | n (1, low 4 bits) | n cut sizes | the client's byte stream |
+/// ```
+///
+/// Reads take the cut sizes in turn (0: as much as the buffer holds); with
+/// [`HTTP_PARTIAL_WRITES`], writes take `1 + cut % 16` bytes, in turn.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct HttpInput<'a> {
+    pub flags: u8,
+    pub cuts: &'a [u8],
+    pub stream: &'a [u8],
+}
+
+impl<'a> HttpInput<'a> {
+    pub fn parse(data: &'a [u8]) -> Self {
+        let byte = |i: usize| data.get(i).copied().unwrap_or(0);
+        let rest = data.get(2..).unwrap_or(&[]);
+        let (cuts, stream) = rest.split_at(usize::from(byte(1) & 0x0f).min(rest.len()));
+        Self { flags: byte(0), cuts, stream }
+    }
+
+    pub fn to_bytes(&self) -> Vec<u8> {
+        assert!(self.cuts.len() <= MAX_CUTS);
+        let mut out = vec![self.flags, self.cuts.len() as u8];
+        out.extend_from_slice(self.cuts);
+        out.extend_from_slice(self.stream);
+        out
+    }
+}
+
 fn policy(flags: u8, unit_id: u8) -> Policy {
     Policy {
         unit_id: (flags & UNIT_FILTER != 0).then_some(unit_id),

@@ -2,8 +2,8 @@
 //! connection for a session, and the checks every reply must pass.
 //!
 //! Each target is a few lines around one function here ([`session`],
-//! [`handler`], [`codec`], [`store`]), so the same checks also run as plain
-//! tests over the seed inputs (`cargo test` in this workspace).
+//! [`handler`], [`codec`], [`store`], [`http`]), so the same checks also run as
+//! plain tests over the seed inputs (`cargo test` in this workspace).
 //!
 //! The checks are those of the library's session property test
 //! (`firmware/adapter/src/server/session/properties.rs`), against the same
@@ -15,6 +15,7 @@
 
 pub mod check;
 pub mod connection;
+mod http;
 pub mod input;
 pub mod storage;
 
@@ -31,7 +32,8 @@ use test_support::framer::{self, Next, split_replies};
 use test_support::reply::Answer;
 
 use check::Pins;
-pub use input::{HandlerInput, SessionInput};
+pub use http::http;
+pub use input::{HandlerInput, HttpInput, SessionInput};
 pub use storage::{StoreInput, store};
 
 /// The server's configuration as the tests set it: no idle timeout (the mock

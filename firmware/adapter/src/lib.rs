@@ -9,6 +9,7 @@
 //! - [`settings`]: the one settings model, and [`net`]: the boards' network policy.
 //! - [`storage`]: the settings and the admin password saved on the device,
 //!   power-fail safe, over any `embedded-storage-async` NOR flash.
+//! - `http` (feature `http`): the HTTP JSON API over the settings, the server and the device.
 //!
 //! The library is `no_std` and allocation-free; every size is a named constant.
 #![cfg_attr(not(test), no_std)]
@@ -19,6 +20,8 @@ pub mod fmt;
 
 pub mod analog;
 pub mod device;
+#[cfg(feature = "http")]
+pub mod http;
 pub mod io;
 pub mod map;
 pub mod net;

@@ -8,6 +8,8 @@
 
 mod board;
 mod flash;
+#[cfg(feature = "http")]
+mod http;
 mod leds;
 mod net;
 mod pins;
@@ -63,6 +65,8 @@ async fn main(spawner: Spawner) {
         spawner.spawn(unwrap!(modbus_task(stack, server, slot)));
     }
     spawner.spawn(unwrap!(refresh_task(device, board.inputs)));
+    #[cfg(feature = "http")]
+    http::spawn(spawner, stack, server, board.mac);
     let config = server.config();
     defmt::info!("serving Modbus TCP on port {}, {} sessions", config.port, config.max_connections);
 }

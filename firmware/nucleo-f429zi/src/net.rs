@@ -19,8 +19,13 @@ pub type Runner = embassy_net::Runner<'static, Device>;
 pub const RX_PACKETS: usize = 4;
 /// Frames the stack can queue for the MAC (1514 bytes each).
 pub const TX_PACKETS: usize = 4;
-/// Sockets in the stack: the Modbus listeners and DHCP's.
-pub const NET_SOCKETS: usize = SOCKET_POOL + 1;
+/// Sockets in the stack: the Modbus listeners and DHCP's (and the HTTP
+/// listeners with the `http` feature).
+pub const NET_SOCKETS: usize = SOCKET_POOL + 1 + HTTP_SOCKETS;
+#[cfg(feature = "http")]
+const HTTP_SOCKETS: usize = adapter::http::MAX_HTTP_CONNECTIONS;
+#[cfg(not(feature = "http"))]
+const HTTP_SOCKETS: usize = 0;
 
 /// The DMA descriptors and frame buffers (in SRAM: the MAC's DMA cannot reach CCM RAM).
 pub fn packets() -> &'static mut PacketQueue<TX_PACKETS, RX_PACKETS> {

@@ -3,16 +3,22 @@
 //! the store's from records and real saves (`firmware_fuzz::storage::seeds`):
 //!
 //! ```text
-//! cargo run -p fuzz-seeds -- DIR    # writes DIR/session, DIR/handler, DIR/codec, DIR/store
+//! cargo run -p fuzz-seeds -- DIR    # writes DIR/session, DIR/handler, DIR/codec, DIR/store, DIR/http
 //! ```
+//!
+//! The http target's seeds are requests to every endpoint of the API
+//! (docs/http-api.md), whole and cut, with and without the password.
 //!
 //! Each seed runs through its target's checks before it is written, so a
 //! seed that fails them is reported here and not handed to the fuzzer.
 
 use std::path::{Path, PathBuf};
 
-use firmware_fuzz::input::{PARTIAL_WRITES, STALL_READS, STRICT, UNIT_FILTER};
-use firmware_fuzz::{HandlerInput, SessionInput};
+use firmware_fuzz::input::{
+    HTTP_KEEP_OPEN, HTTP_OUTSIDE, HTTP_PARTIAL_WRITES, HTTP_PASSWORD_SET, HTTP_SAVE_FAILS, HTTP_STALL_READS,
+    PARTIAL_WRITES, STALL_READS, STRICT, UNIT_FILTER,
+};
+use firmware_fuzz::{HandlerInput, HttpInput, SessionInput};
 use test_support::fixtures::PYMODBUS;
 
 fn main() {
@@ -25,13 +31,15 @@ fn main() {
         write(&dir.join("handler"), &handler_seeds(), firmware_fuzz::handler),
         write(&dir.join("codec"), &codec_seeds(), firmware_fuzz::codec),
         write(&dir.join("store"), &firmware_fuzz::storage::seeds(), firmware_fuzz::store),
+        write(&dir.join("http"), &http_seeds(), firmware_fuzz::http),
     ];
     println!(
-        "fuzz-seeds: {} session, {} handler, {} codec, {} store seeds in {}",
+        "fuzz-seeds: {} session, {} handler, {} codec, {} store, {} http seeds in {}",
         written[0],
         written[1],
         written[2],
         written[3],
+        written[4],
         dir.display()
     );
 }
@@ -101,5 +109,52 @@ fn codec_seeds() -> Vec<Vec<u8>> {
         seeds.push(fixture.reply[7..].to_vec());
         seeds.push(fixture.request.to_vec());
     }
+    seeds
+}
+
+/// `method path` with `headers` (each ending `\r\n`) and `body`.
+fn http_request(method: &str, path: &str, headers: &str, body: &str) -> Vec<u8> {
+    let length = if body.is_empty() { String::new() } else { format!("Content-Length: {}\r\n", body.len()) };
+    format!("{method} {path} HTTP/1.1\r\nHost: mbio\r\n{headers}{length}\r\n{body}").into_bytes()
+}
+
+fn http_seeds() -> Vec<Vec<u8>> {
+    // admin:s3cret-pass (firmware_fuzz::input::PASSWORD).
+    let auth = "Authorization: Basic YWRtaW46czNjcmV0LXBhc3M=\r\n";
+    let requests = [
+        http_request("GET", "/api/status", "", ""),
+        http_request("GET", "/api/settings", "", ""),
+        http_request("PUT", "/api/settings", "", r#"{"modbus": {"unit_id": 7, "port": "1502"}}"#),
+        http_request("PUT", "/api/settings", auth, r#"{"network": {"mode": "static", "address": "10.0.0.9/24"}}"#),
+        http_request("PUT", "/api/settings", "", r#"{"network": {"mode": "static"}, "robot": {"poll_ms": 5}}"#),
+        http_request("PUT", "/api/settings", "", r#"{"device": {"name": "cell-4"}, "admin": {"password_set": true}}"#),
+        http_request("PUT", "/api/settings", "", r#"{"watchdog": {"timeout_ms": 500, "safe_do": "0x8001"}}"#),
+        http_request("PUT", "/api/settings", "", r#"{"modbus": {"allow_write": "10.0.0.0/8,192.168.1.7"}}"#),
+        http_request("PUT", "/api/settings", "", r#"{"nonsense": [1, {"a": null}], "modbus": {"x": true}}"#),
+        http_request("PUT", "/api/password", "", r#"{"password": "n3w-password"}"#),
+        http_request("PUT", "/api/password", auth, r#"{"password": "\u00e9\u00e9\u00e9\u00e9"}"#),
+        http_request("POST", "/api/reboot", auth, ""),
+        http_request("POST", "/api/factory-reset", "", "{}"),
+        http_request("POST", "/api/locate", auth, ""),
+        http_request("DELETE", "/api/settings", "", ""),
+        http_request("GET", "/api/events?x=1", "", ""),
+        b"PUT /api/settings HTTP/1.1\r\nContent-Length: 4096\r\n\r\n{".to_vec(),
+        b"GET /api/status HTTP/1.1\r\nX: \0Content-Length: 1\r\n\r\n".to_vec(),
+    ];
+    let seed = |flags: u8, cuts: &[u8], stream: &[u8]| HttpInput { flags, cuts, stream }.to_bytes();
+    let mut seeds: Vec<Vec<u8>> = requests.iter().map(|r| seed(0, &[], r)).collect();
+    for request in &requests[2..4] {
+        seeds.extend([
+            seed(HTTP_PASSWORD_SET, &[], request),
+            seed(HTTP_OUTSIDE, &[], request),
+            seed(HTTP_SAVE_FAILS, &[], request),
+            seed(HTTP_STALL_READS | HTTP_PARTIAL_WRITES, &[1, 7, 0], request),
+            seed(HTTP_KEEP_OPEN, &[], &request[..request.len() / 2]),
+        ]);
+    }
+    seeds.push(seed(HTTP_PASSWORD_SET, &[], &requests[11]));
+    // picoserve removes NUL bytes from header fields: these credentials are right.
+    let nul = "Authorization: Basic YWRtaW46czNjcmV0LX\0Bhc3M=\r\n";
+    seeds.push(seed(HTTP_PASSWORD_SET, &[], &http_request("POST", "/api/reboot", nul, "")));
     seeds
 }

@@ -148,61 +148,104 @@ impl Wire {
     }
 }
 
-impl ErrorType for ServerEnd {
+impl ServerEnd {
+    /// Splits the server's end into a read half and a write half over the
+    /// same connection, as embassy-net's `TcpSocket::split` does, for code
+    /// that holds the two apart.
+    pub fn split(self) -> (ReadHalf, WriteHalf) {
+        (ReadHalf(self.0.clone()), WriteHalf(self.0))
+    }
+}
+
+/// The reading half of a [`ServerEnd`].
+#[derive(Debug)]
+pub struct ReadHalf(Rc<RefCell<State>>);
+
+/// The writing half of a [`ServerEnd`].
+#[derive(Debug)]
+pub struct WriteHalf(Rc<RefCell<State>>);
+
+/// Waits for bytes (or the client's close); panics on an empty `buf`,
+/// where a 0 would say the stream has ended.
+async fn read(state: &RefCell<State>, buf: &mut [u8]) -> Result<usize, ErrorKind> {
+    assert!(!buf.is_empty(), "a read into an empty buffer (its 0 would mean the end of the stream)");
+    std::future::poll_fn(|cx| {
+        let mut state = state.borrow_mut();
+        if state.reset {
+            return Poll::Ready(Err(ErrorKind::ConnectionReset));
+        }
+        if state.to_server.is_empty() && !state.closed {
+            state.reader = Some(cx.waker().clone());
+            return Poll::Pending;
+        }
+        let stall = state.stall_reads;
+        if state.stall(stall, cx) {
+            return Poll::Pending;
+        }
+        let n = buf.len().min(state.to_server.len()).min(limit(&state.read_sizes, state.reads));
+        state.reads += 1;
+        for (dst, src) in buf.iter_mut().zip(state.to_server.drain(..n)) {
+            *dst = src;
+        }
+        Poll::Ready(Ok(n))
+    })
+    .await
+}
+
+async fn write(state: &RefCell<State>, buf: &[u8]) -> Result<usize, ErrorKind> {
+    std::future::poll_fn(|cx| {
+        let mut state = state.borrow_mut();
+        if state.reset {
+            return Poll::Ready(Err(ErrorKind::ConnectionReset));
+        }
+        let stall = state.stall_writes;
+        if state.stall(stall, cx) {
+            return Poll::Pending;
+        }
+        let n = buf.len().min(limit(&state.write_sizes, state.writes));
+        state.writes += 1;
+        state.from_server.extend_from_slice(&buf[..n]);
+        Poll::Ready(Ok(n))
+    })
+    .await
+}
+
+fn flush(state: &RefCell<State>) -> Result<(), ErrorKind> {
+    if state.borrow().reset { Err(ErrorKind::ConnectionReset) } else { Ok(()) }
+}
+
+macro_rules! io {
+    (read $($ty:ty),*) => {$(
+        impl ErrorType for $ty {
+            type Error = ErrorKind;
+        }
+
+        impl Read for $ty {
+            /// Waits for bytes (or the client's close); panics on an empty
+            /// `buf`, where a 0 would say the stream has ended.
+            async fn read(&mut self, buf: &mut [u8]) -> Result<usize, ErrorKind> {
+                read(&self.0, buf).await
+            }
+        }
+    )*};
+    (write $($ty:ty),*) => {$(
+        impl Write for $ty {
+            async fn write(&mut self, buf: &[u8]) -> Result<usize, ErrorKind> {
+                write(&self.0, buf).await
+            }
+
+            async fn flush(&mut self) -> Result<(), ErrorKind> {
+                flush(&self.0)
+            }
+        }
+    )*};
+}
+
+io!(read ServerEnd, ReadHalf);
+io!(write ServerEnd, WriteHalf);
+
+impl ErrorType for WriteHalf {
     type Error = ErrorKind;
-}
-
-impl Read for ServerEnd {
-    /// Waits for bytes (or the client's close); panics on an empty `buf`,
-    /// where a 0 would say the stream has ended.
-    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, ErrorKind> {
-        assert!(!buf.is_empty(), "a read into an empty buffer (its 0 would mean the end of the stream)");
-        std::future::poll_fn(|cx| {
-            let mut state = self.0.borrow_mut();
-            if state.reset {
-                return Poll::Ready(Err(ErrorKind::ConnectionReset));
-            }
-            if state.to_server.is_empty() && !state.closed {
-                state.reader = Some(cx.waker().clone());
-                return Poll::Pending;
-            }
-            let stall = state.stall_reads;
-            if state.stall(stall, cx) {
-                return Poll::Pending;
-            }
-            let n = buf.len().min(state.to_server.len()).min(limit(&state.read_sizes, state.reads));
-            state.reads += 1;
-            for (dst, src) in buf.iter_mut().zip(state.to_server.drain(..n)) {
-                *dst = src;
-            }
-            Poll::Ready(Ok(n))
-        })
-        .await
-    }
-}
-
-impl Write for ServerEnd {
-    async fn write(&mut self, buf: &[u8]) -> Result<usize, ErrorKind> {
-        std::future::poll_fn(|cx| {
-            let mut state = self.0.borrow_mut();
-            if state.reset {
-                return Poll::Ready(Err(ErrorKind::ConnectionReset));
-            }
-            let stall = state.stall_writes;
-            if state.stall(stall, cx) {
-                return Poll::Pending;
-            }
-            let n = buf.len().min(limit(&state.write_sizes, state.writes));
-            state.writes += 1;
-            state.from_server.extend_from_slice(&buf[..n]);
-            Poll::Ready(Ok(n))
-        })
-        .await
-    }
-
-    async fn flush(&mut self) -> Result<(), ErrorKind> {
-        if self.0.borrow().reset { Err(ErrorKind::ConnectionReset) } else { Ok(()) }
-    }
 }
 
 /// Polls `future` once, as an executor would after a wake-up.
@@ -282,6 +325,20 @@ mod tests {
         wire.reset();
         assert_eq!(read(&mut end, 8), Poll::Ready(Err(ErrorKind::ConnectionReset)));
         assert_eq!(poll_once(pin!(end.write(&[1]))), Poll::Ready(Err(ErrorKind::ConnectionReset)));
+    }
+
+    #[test]
+    fn split_halves_share_the_connection() {
+        let (wire, end) = Wire::new();
+        let (mut reader, mut writer) = end.split();
+        wire.send(&[4, 5]);
+        let mut buf = [0; 8];
+        assert_eq!(poll_once(pin!(reader.read(&mut buf))), Poll::Ready(Ok(2)));
+        assert_eq!(poll_once(pin!(writer.write(&[6]))), Poll::Ready(Ok(1)));
+        assert_eq!(wire.take_replies(), [6]);
+        wire.reset();
+        assert_eq!(poll_once(pin!(reader.read(&mut buf))), Poll::Ready(Err(ErrorKind::ConnectionReset)));
+        assert_eq!(poll_once(pin!(writer.flush())), Poll::Ready(Err(ErrorKind::ConnectionReset)));
     }
 
     #[test]

@@ -76,6 +76,12 @@ impl<'a> Device<'a> {
         self.watchdog.lock(Cell::get)
     }
 
+    /// Whether the watchdog has put the outputs in their safe state and no
+    /// valid request has come since.
+    pub fn watchdog_tripped(&self) -> bool {
+        self.state.lock(|state| state.borrow().monitor.tripped())
+    }
+
     /// Puts a new watchdog configuration in force at once.
     pub fn set_watchdog(&self, watchdog: Watchdog) {
         self.watchdog.lock(|cell| cell.set(watchdog));

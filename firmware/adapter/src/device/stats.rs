@@ -36,6 +36,13 @@ macro_rules! counters {
             }
         }
 
+        impl Counters {
+            /// Calls `f` with each counter's name and value, in a fixed order.
+            pub fn for_each(&self, mut f: impl FnMut(&'static str, u32)) {
+                $( f(stringify!($name), self.$name); )*
+            }
+        }
+
         impl fmt::Display for Counters {
             /// `name=value` pairs separated by spaces, in a fixed order.
             fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -122,5 +129,8 @@ mod tests {
             "requests=2 bad_protocol=0 bad_length=0 bad_function=1 bad_address=1 bad_value=1 refused_writes=1 \
              other_unit=1 evictions=0 timeouts=0 refused_connections=0 watchdog_trips=0"
         );
+        let mut pairs = Vec::new();
+        c.for_each(|name, value| pairs.push(format!("{name}={value}")));
+        assert_eq!(pairs.join(" "), c.to_string(), "the same names and order");
     }
 }

@@ -60,7 +60,9 @@ fn the_watchdog_puts_outputs_in_their_safe_state_until_written_again() {
     assert!(!shared.check_watchdog());
     ask(shared, &[0x03, 0x01, 0xb4, 0x00, 0x01]); // an exception is not a valid request
     clock.advance(Duration::from_millis(1));
+    assert!(!shared.watchdog_tripped());
     assert!(shared.check_watchdog());
+    assert!(shared.watchdog_tripped());
     assert_eq!(outputs().digital, 0b1000_0000_0000_0000);
     assert_eq!([outputs().analog[0].value, outputs().analog[1].value], [4_000, 0]);
     assert_eq!(shared.read(|image| image.register(1)), 0b1000_0000_0000_0000, "both views show the safe state");
@@ -71,6 +73,7 @@ fn the_watchdog_puts_outputs_in_their_safe_state_until_written_again() {
     clock.advance(Duration::from_secs(10));
     assert!(!shared.check_watchdog());
     ask(shared, &READ_128);
+    assert!(!shared.watchdog_tripped(), "re-armed");
     assert_eq!(outputs().digital, 0b1000_0000_0000_0000);
     // A write restores them; silence trips it again.
     ask(shared, &WRITE_COIL_16_ON);

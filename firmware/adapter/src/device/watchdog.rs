@@ -78,6 +78,11 @@ impl Monitor {
         self.tripped = false;
     }
 
+    /// Whether the watchdog has tripped since the last valid request.
+    pub(crate) const fn tripped(&self) -> bool {
+        self.tripped
+    }
+
     /// Whether the watchdog trips now (once per silence).
     pub(crate) fn check(&mut self, now: Instant, timeout: Duration) -> bool {
         let silent = now.checked_duration_since(self.last_valid).is_some_and(|d| d >= timeout);
@@ -97,10 +102,13 @@ mod tests {
         let timeout = Duration::from_millis(500);
         let mut monitor = Monitor::new(at(0));
         assert!(!monitor.check(at(499), timeout));
+        assert!(!monitor.tripped());
         assert!(monitor.check(at(500), timeout));
+        assert!(monitor.tripped());
         assert!(!monitor.check(at(600), timeout), "once per silence");
         assert!(!monitor.check(at(5_000), timeout));
         monitor.valid_request(at(5_000));
+        assert!(!monitor.tripped(), "a valid request re-arms it");
         assert!(!monitor.check(at(5_499), timeout));
         assert!(monitor.check(at(5_500), timeout), "re-armed");
     }

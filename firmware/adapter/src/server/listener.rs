@@ -85,13 +85,13 @@ pub async fn listen<S: Service>(stack: Stack<'_>, server: &Server<'_, S>, slot: 
 /// A client's IPv4 address (`None`: not IPv4, never allowed) and port, as
 /// logs show it (through [`Ip`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-struct Peer {
-    address: Option<[u8; 4]>,
-    port: u16,
+pub(crate) struct Peer {
+    pub(crate) address: Option<[u8; 4]>,
+    pub(crate) port: u16,
 }
 
 impl Peer {
-    fn of(endpoint: Option<IpEndpoint>) -> Self {
+    pub(crate) fn of(endpoint: Option<IpEndpoint>) -> Self {
         #[allow(unreachable_patterns, reason = "IPv6 exists only when another crate enables it")]
         let address = endpoint.and_then(|endpoint| match endpoint.addr {
             IpAddress::Ipv4(address) => Some(address.octets()),

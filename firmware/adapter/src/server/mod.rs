@@ -18,9 +18,11 @@ use embassy_time::Duration;
 
 pub use access::{Access, AllowList, Network};
 pub use handler::{Outcome, Policy};
+#[cfg(feature = "http")]
+pub(crate) use listener::Peer;
 pub use listener::{CLOSE_TIMEOUT, SOCKET_RX_LEN, SOCKET_TX_LEN, listen};
 pub use session::{Error, SESSION_BUFFER_LEN, serve};
-pub use slots::{SlotId, Slots};
+pub use slots::{Session, SlotId, Slots};
 
 pub use crate::device::{Counters, SafeState, Stats, Watchdog};
 use crate::modbus::mbap::MAX_ADU_LEN;

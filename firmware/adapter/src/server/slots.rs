@@ -23,6 +23,18 @@ struct Entry {
     read_only: bool,
 }
 
+/// An open session as [`Slots::sessions`] reports it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Session {
+    /// Its client's IPv4 address.
+    pub peer: [u8; 4],
+    /// When its last request (or its connection) came.
+    pub last: Instant,
+    /// Its client may not write.
+    pub read_only: bool,
+}
+
 /// One entry per socket while a session is open.
 pub struct Slots {
     active: Mutex<CriticalSectionRawMutex, RefCell<[Option<Entry>; SOCKET_POOL]>>,
@@ -150,6 +162,15 @@ impl Slots {
         self.active.lock(|active| active.borrow().get(id).copied().flatten().is_some_and(|entry| entry.read_only))
     }
 
+    /// The open sessions, by slot (`None`: a listening slot).
+    pub fn sessions(&self) -> [Option<Session>; SOCKET_POOL] {
+        self.active.lock(|active| {
+            active.borrow().map(|slot| {
+                slot.map(|entry| Session { peer: entry.peer, last: entry.last, read_only: entry.read_only })
+            })
+        })
+    }
+
     /// Sessions open now.
     pub fn open_count(&self) -> usize {
         self.active.lock(|active| active.borrow().iter().filter(|s| s.is_some()).count())
@@ -239,6 +260,10 @@ mod tests {
         slots.open(1, 8, at(0), PEER, false);
         assert!(slots.read_only(0) && !slots.read_only(1));
         assert!(!slots.read_only(2) && !slots.read_only(SOCKET_POOL), "no session, no restriction to report");
+        let sessions = slots.sessions();
+        assert_eq!(sessions[0], Some(Session { peer: PEER, last: at(0), read_only: true }));
+        assert_eq!(sessions[1], Some(Session { peer: PEER, last: at(0), read_only: false }));
+        assert!(sessions[2..].iter().all(Option::is_none));
         slots.close(0);
         slots.open(0, 8, at(1), PEER, false);
         assert!(!slots.read_only(0), "a new client on the same slot has its own rights");

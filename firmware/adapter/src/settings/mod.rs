@@ -151,6 +151,12 @@ impl Settings {
         [address, gateway]
     }
 
+    /// Whether going from these settings to `new` needs a reboot: a field
+    /// that applies after reboot ([`Field::applies`]) changed.
+    pub fn reboot_required(&self, new: &Self) -> bool {
+        Field::ALL.iter().any(|&field| field.applies() == Applies::AfterReboot && self.differs(new, field))
+    }
+
     /// The Modbus server's configuration.
     pub fn server_config(&self) -> server::Config {
         let modbus = &self.modbus;
@@ -384,6 +390,13 @@ macro_rules! fields {
                     })*
                 }
                 Ok(())
+            }
+
+            /// Whether `field` holds another value in `other`.
+            pub fn differs(&self, other: &Self, field: Field) -> bool {
+                match field {
+                    $(Field::$variant => self.$group.$field != other.$group.$field,)*
+                }
             }
 
             /// Writes `field`'s value as [`Settings::set`] takes it.

@@ -115,3 +115,22 @@ fn build_variables_apply_when_set() {
         }
     }
 }
+
+#[test]
+fn a_reboot_is_required_only_for_changed_after_reboot_fields() {
+    let old = Settings::DEFAULT;
+    let mut new = old;
+    assert!(!old.reboot_required(&new));
+    for &field in Field::ALL {
+        assert!(!old.differs(&new, field));
+    }
+    new.set(Field::ModbusUnitId, "7").unwrap();
+    new.set(Field::WatchdogTimeout, "500").unwrap();
+    assert!(old.differs(&new, Field::ModbusUnitId) && !old.differs(&new, Field::ModbusPort));
+    assert!(!old.reboot_required(&new), "both apply at once");
+    new.set(Field::ModbusPort, "1502").unwrap();
+    assert!(old.reboot_required(&new) && new.reboot_required(&old));
+    let mut same_port = new;
+    same_port.set(Field::ModbusPort, "502").unwrap();
+    assert!(!old.reboot_required(&same_port), "set back to what it was: no change");
+}

@@ -1,0 +1,783 @@
+//! The endpoints (DEVICE.md section 2): routing, who may change things, and
+//! the JSON documents each one reads and writes.
+
+use core::cell::Cell;
+
+use embassy_time::{Instant, Timer};
+use picoserve::ResponseSent;
+use picoserve::io::Read;
+use picoserve::request::{Path, Request, RequestBodyConnection, RequestParts};
+use picoserve::response::{Response, ResponseWriter, StatusCode};
+use picoserve::routing::PathRouterService;
+
+use super::auth::{self, Credentials, MAX_CREDENTIALS_LEN};
+use super::backend::{Backend, Refusal, RobotSource};
+use super::json::{Malformed, Out, Reader, Str, Value};
+use super::{AUTH_FAILURE_DELAY, Action, Http, LOCATE_DURATION, MAX_PASSWORD_LEN, MIN_PASSWORD_LEN, REALM_HEADER};
+use crate::io::AnalogType;
+use crate::map::Image;
+use crate::map::table::reg;
+use crate::settings::{Field, Kind, Settings};
+
+const JSON: &str = "application/json";
+
+/// The longest text any setting takes: an allow-list of 8 networks of 18
+/// characters and 7 commas is 151.
+const MAX_VALUE_LEN: usize = 160;
+
+/// Unknown keys listed in one 400 (more are refused all the same).
+const MAX_UNKNOWN_LISTED: usize = 8;
+
+/// The group of the admin password, which `PUT /api/settings` does not set.
+const ADMIN: &str = "admin";
+
+/// What a request asks for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Endpoint {
+    Status,
+    GetSettings,
+    PutSettings,
+    PutPassword,
+    Reboot,
+    FactoryReset,
+    Locate,
+}
+
+/// Why a request has no endpoint.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Miss {
+    NotFound,
+    /// The path exists; these methods are allowed on it.
+    MethodNotAllowed(&'static str),
+}
+
+/// The endpoint for `method` on `path` (the path without its query).
+pub(super) fn route(method: &str, path: &str) -> Result<Endpoint, Miss> {
+    let (allowed, endpoint) = match (path, method) {
+        ("/api/status", "GET") => ("", Some(Endpoint::Status)),
+        ("/api/status", _) => ("GET", None),
+        ("/api/settings", "GET") => ("", Some(Endpoint::GetSettings)),
+        ("/api/settings", "PUT") => ("", Some(Endpoint::PutSettings)),
+        ("/api/settings", _) => ("GET, PUT", None),
+        ("/api/password", "PUT") => ("", Some(Endpoint::PutPassword)),
+        ("/api/password", _) => ("PUT", None),
+        ("/api/reboot", "POST") => ("", Some(Endpoint::Reboot)),
+        ("/api/factory-reset", "POST") => ("", Some(Endpoint::FactoryReset)),
+        ("/api/locate", "POST") => ("", Some(Endpoint::Locate)),
+        ("/api/reboot" | "/api/factory-reset" | "/api/locate", _) => ("POST", None),
+        // The page, /api/events and /api/firmware come later: 404 until then.
+        _ => return Err(Miss::NotFound),
+    };
+    endpoint.ok_or(Miss::MethodNotAllowed(allowed))
+}
+
+/// A response's status and the one header it may add.
+#[derive(Clone, Copy, Debug)]
+struct Reply {
+    status: StatusCode,
+    header: Option<(&'static str, &'static str)>,
+}
+
+impl Reply {
+    const fn new(status: StatusCode) -> Self {
+        Self { status, header: None }
+    }
+}
+
+/// `{"errors": {key: message}}` with one request-level key.
+fn refusal(out: &mut Out<'_>, status: StatusCode, key: &str, message: &str) -> Reply {
+    out.clear();
+    out.text("{\"errors\":{");
+    out.string(key);
+    out.text(":");
+    out.string(message);
+    out.text("}}");
+    Reply::new(status)
+}
+
+/// One connection's view of the API: who is asking, where the response is
+/// written, and what to do once it has gone out.
+pub(super) struct Api<'h, 'b, 'r, B: Backend> {
+    pub(super) http: &'h Http<'b, B>,
+    /// The client's IPv4 address (`None`: not IPv4, never allowed to change things).
+    pub(super) peer: Option<[u8; 4]>,
+    /// The response body's buffer, taken by the one request served.
+    pub(super) response: Cell<Option<&'r mut [u8]>>,
+    /// A reboot or factory reset accepted, run after the connection closes.
+    pub(super) action: Cell<Option<Action>>,
+}
+
+impl<B: Backend> PathRouterService for &Api<'_, '_, '_, B> {
+    async fn call_path_router_service<R: Read, W: ResponseWriter<Error = R::Error>>(
+        &self,
+        _state: &(),
+        _path_parameters: (),
+        _path: Path<'_>,
+        request: Request<'_, R>,
+        response_writer: W,
+    ) -> Result<ResponseSent, W::Error> {
+        // One request per connection: the buffer is there. Were it not, the
+        // empty one gives a 500 with no body.
+        let mut none = [0u8; 0];
+        let buffer = self.response.take().unwrap_or(&mut none);
+        let mut out = Out::new(buffer);
+        let Request { parts, mut body_connection } = request;
+        let mut reply = self.respond(&parts, &mut body_connection, &mut out).await;
+        if out.overflowed() {
+            reply = refusal(&mut out, StatusCode::INTERNAL_SERVER_ERROR, "response", "too large");
+            if out.overflowed() {
+                out.clear();
+            }
+        }
+        let connection = body_connection.finalize().await?;
+        let response = Response::new(reply.status, out.as_bytes())
+            .with_content_type(JSON)
+            .with_headers(("Cache-Control", "no-store"))
+            .with_headers(reply.header);
+        response_writer.write_response(connection, response).await
+    }
+}
+
+impl<B: Backend> Api<'_, '_, '_, B> {
+    fn backend(&self) -> &B {
+        self.http.backend
+    }
+
+    async fn respond<R: Read>(
+        &self,
+        parts: &RequestParts<'_>,
+        body: &mut RequestBodyConnection<'_, R>,
+        out: &mut Out<'_>,
+    ) -> Reply {
+        let endpoint = match route(parts.method(), parts.path().encoded()) {
+            Ok(endpoint) => endpoint,
+            Err(Miss::NotFound) => return refusal(out, StatusCode::NOT_FOUND, "request", "no such resource"),
+            Err(Miss::MethodNotAllowed(allowed)) => {
+                let reply = refusal(out, StatusCode::METHOD_NOT_ALLOWED, "request", "method not allowed here");
+                return Reply { header: Some(("Allow", allowed)), ..reply };
+            }
+        };
+        match endpoint {
+            Endpoint::Status => {
+                self.status(out);
+                return Reply::new(StatusCode::OK);
+            }
+            Endpoint::GetSettings => {
+                settings_document(out, &self.backend().settings(), self.backend().password_set(), None);
+                return Reply::new(StatusCode::OK);
+            }
+            _ => {}
+        }
+        if let Err(reply) = self.authorize(parts, out).await {
+            return reply;
+        }
+        match endpoint {
+            Endpoint::PutSettings | Endpoint::PutPassword => {
+                let bytes = match body.body().read_all().await {
+                    Ok(bytes) => bytes,
+                    Err(error) => return body_refusal(out, &error),
+                };
+                if endpoint == Endpoint::PutSettings {
+                    self.put_settings(bytes, out).await
+                } else {
+                    self.put_password(bytes, out).await
+                }
+            }
+            Endpoint::Reboot => {
+                self.action.set(Some(Action::Reboot));
+                out.text("{\"rebooting\":true}");
+                Reply::new(StatusCode::ACCEPTED)
+            }
+            Endpoint::FactoryReset => {
+                self.action.set(Some(Action::FactoryReset));
+                out.text("{\"factory_reset\":true,\"rebooting\":true}");
+                Reply::new(StatusCode::ACCEPTED)
+            }
+            Endpoint::Locate => {
+                self.backend().locate(LOCATE_DURATION);
+                out.text("{\"locating_s\":");
+                out.number(LOCATE_DURATION.as_secs());
+                out.text("}");
+                Reply::new(StatusCode::OK)
+            }
+            Endpoint::Status | Endpoint::GetSettings => Reply::new(StatusCode::INTERNAL_SERVER_ERROR),
+        }
+    }
+
+    /// Every change comes from an address `modbus.allow_write` admits (403),
+    /// with the admin password once one is set (401).
+    async fn authorize(&self, parts: &RequestParts<'_>, out: &mut Out<'_>) -> Result<(), Reply> {
+        let backend = self.backend();
+        let may_write = self.peer.is_some_and(|peer| backend.server().with_config(|c| c.access.may_write(peer)));
+        if !may_write {
+            let message = "this address may not change the device (modbus.allow_write)";
+            return Err(refusal(out, StatusCode::FORBIDDEN, "request", message));
+        }
+        if !backend.password_set() {
+            return Ok(());
+        }
+        let mut buf = [0u8; MAX_CREDENTIALS_LEN];
+        let header = parts.headers().get("authorization").map(|value| value.as_raw());
+        let verdict = match auth::credentials(header, &mut buf) {
+            Credentials::Admin(password) => backend.verify_password(password).await,
+            Credentials::Missing => false,
+            Credentials::Invalid => false,
+        };
+        if verdict {
+            return Ok(());
+        }
+        if header.is_some() {
+            // Wrong credentials: slow down guessing (at most one try per
+            // connection per delay, and few connections).
+            Timer::after(AUTH_FAILURE_DELAY).await;
+        }
+        let message = "the admin password is required (HTTP Basic, user admin)";
+        let reply = refusal(out, StatusCode::UNAUTHORIZED, "request", message);
+        Err(Reply { header: Some(("WWW-Authenticate", REALM_HEADER)), ..reply })
+    }
+
+    /// `PUT /api/settings`: any subset, grouped; all or nothing.
+    async fn put_settings(&self, body: &[u8], out: &mut Out<'_>) -> Reply {
+        let _change = self.http.changes.lock().await;
+        let backend = self.backend();
+        let old = backend.settings();
+        let mut new = old;
+        let mut report = Report::new(out);
+        if let Err(malformed) = patch(body, &mut new, &mut report) {
+            return malformed_refusal(out, malformed);
+        }
+        if report.is_empty()
+            && let Err(errors) = new.validate()
+        {
+            for &(field, rule) in errors.iter() {
+                report.add(Key::Field(field), rule);
+            }
+        }
+        if !report.is_empty() {
+            report.finish();
+            return Reply::new(StatusCode::BAD_REQUEST);
+        }
+        let reboot_required = if new == old {
+            false
+        } else {
+            match backend.apply(&new).await {
+                Ok(reboot_required) => reboot_required,
+                Err(refused) => return refused_change(out, refused, "the settings were not saved; nothing changed"),
+            }
+        };
+        settings_document(out, &backend.settings(), backend.password_set(), Some(reboot_required));
+        Reply::new(StatusCode::OK)
+    }
+
+    /// `PUT /api/password`: `{"password": "..."}`, 8-64 bytes.
+    async fn put_password(&self, body: &[u8], out: &mut Out<'_>) -> Reply {
+        let _change = self.http.changes.lock().await;
+        let mut password = [0u8; MAX_PASSWORD_LEN];
+        let mut report = Report::new(out);
+        let len = match read_password(body, &mut password, &mut report) {
+            Ok(len) => len,
+            Err(malformed) => return malformed_refusal(out, malformed),
+        };
+        let rule = "8-64 bytes";
+        match len {
+            _ if !report.is_empty() => {}
+            None => report.add(Key::Name("password"), "required"),
+            Some(len) if !(MIN_PASSWORD_LEN..=MAX_PASSWORD_LEN).contains(&len) => {
+                report.add(Key::Name("password"), rule)
+            }
+            Some(_) => {}
+        }
+        if !report.is_empty() {
+            report.finish();
+            return Reply::new(StatusCode::BAD_REQUEST);
+        }
+        let password = password.get(..len.unwrap_or(0)).unwrap_or_default();
+        if let Err(refused) = self.backend().set_password(password).await {
+            return refused_change(out, refused, "the password was not saved; nothing changed");
+        }
+        out.text("{\"admin\":{\"password_set\":true}}");
+        Reply::new(StatusCode::OK)
+    }
+
+    /// `GET /api/status`.
+    fn status(&self, out: &mut Out<'_>) {
+        let backend = self.backend();
+        let server = backend.server();
+        let device = server.service();
+        let now = Instant::now();
+        let settings = backend.settings();
+        let mac = backend.mac();
+        let io = device.read(Io::of);
+        let sessions = server.slots().sessions();
+        let counters = server.stats().snapshot();
+        let watchdog = device.watchdog();
+        let tripped = device.watchdog_tripped();
+        let network = backend.network();
+
+        out.text("{\"device\":{\"name\":");
+        out.string_with(|w| write!(w, "{}", settings.device.name.or_default(mac)));
+        out.text(",\"model\":");
+        out.string(backend.model());
+        let crate::io::Version { major, minor, patch } = crate::VERSION;
+        out.text(",\"firmware\":");
+        out.string_with(|w| write!(w, "{major}.{minor}.{patch}"));
+        out.text(",\"uptime_s\":");
+        out.number(now.as_secs());
+        out.text(",\"cpu_load_percent\":");
+        optional(out, backend.cpu_load_percent(), |out, load| out.number(load));
+        out.text(",\"mac\":");
+        let [a, b, c, d, e, f] = mac;
+        out.string_with(|w| write!(w, "{a:02x}:{b:02x}:{c:02x}:{d:02x}:{e:02x}:{f:02x}"));
+        out.text(",\"reset_reason\":");
+        optional(out, backend.reset_reason(), |out, reason| out.string(reason));
+
+        out.text("},\"network\":{\"mode\":");
+        out.string_with(|w| write!(w, "{}", network.mode));
+        out.text(",\"address\":");
+        optional(out, network.address, |out, address| out.string_with(|w| write!(w, "{address}")));
+        out.text(",\"gateway\":");
+        optional(out, network.gateway, |out, gateway| out.string_with(|w| write!(w, "{gateway}")));
+        out.text(",\"link\":");
+        out.boolean(network.link);
+
+        io.write(out, backend.robot_source());
+        out.text(",\"link\":");
+        optional(out, backend.robot_link(), |out, link| {
+            out.text("{\"connected\":");
+            out.boolean(link.connected);
+            out.text(",\"polls\":");
+            out.number(link.polls);
+            out.text(",\"errors\":");
+            out.number(link.errors);
+            out.text(",\"last_ok_ms\":");
+            optional(out, link.last_ok_ms, |out, ms| out.number(ms));
+            out.text("}");
+        });
+
+        out.text("},\"connections\":[");
+        for (i, session) in sessions.iter().flatten().enumerate() {
+            out.text(if i == 0 { "{" } else { ",{" });
+            out.text("\"peer\":\"");
+            for (i, octet) in session.peer.into_iter().enumerate() {
+                if i > 0 {
+                    out.text(".");
+                }
+                out.number(octet);
+            }
+            // Requests per session are not counted yet: null until they are.
+            out.text("\",\"requests\":null,\"idle_ms\":");
+            let idle = now.checked_duration_since(session.last).map_or(0, |idle| idle.as_millis());
+            out.number(idle);
+            out.text(",\"read_only\":");
+            out.boolean(session.read_only);
+            out.text("}");
+        }
+        out.text("],\"counters\":{");
+        let mut first = true;
+        counters.for_each(|name, value| {
+            out.text(if first { "\"" } else { ",\"" });
+            first = false;
+            out.text(name);
+            out.text("\":");
+            out.number(value);
+        });
+        out.text("},\"watchdog\":{\"timeout_ms\":");
+        out.number(watchdog.timeout.map_or(0, |timeout| timeout.as_millis()));
+        out.text(",\"tripped\":");
+        out.boolean(tripped);
+        out.text("},\"storage\":");
+        optional(out, backend.storage(), |out, storage| {
+            out.text("{\"ok\":");
+            out.boolean(storage.ok);
+            out.text(",\"records\":");
+            out.number(storage.records);
+            out.text(",\"erases\":");
+            out.number(storage.erases);
+            out.text("}");
+        });
+        out.text(",\"admin\":{\"password_set\":");
+        out.boolean(backend.password_set());
+        out.text("}}");
+    }
+}
+
+/// `null`, or the value as `write` writes it.
+fn optional<T>(out: &mut Out<'_>, value: Option<T>, write: impl FnOnce(&mut Out<'_>, T)) {
+    match value {
+        Some(value) => write(out, value),
+        None => out.text("null"),
+    }
+}
+
+/// The I/O and robot points of the status document, read under one lock.
+#[derive(Clone, Copy, Debug)]
+struct Io {
+    di: u16,
+    do_: u16,
+    tool_di: u16,
+    tool_do: u16,
+    ai: [u16; 2],
+    ao: [u16; 2],
+    ai_types: [AnalogType; 2],
+    ao_types: [AnalogType; 2],
+    /// Registers 259-264.
+    robot: [u16; 6],
+}
+
+impl Io {
+    fn of(image: &Image) -> Self {
+        let outputs = image.outputs();
+        Self {
+            di: image.register(reg::DIGITAL_INPUTS),
+            do_: outputs.digital,
+            tool_di: image.register(reg::TOOL_INPUTS),
+            tool_do: u16::from(outputs.tool),
+            ai: [image.analog_input(0), image.analog_input(1)],
+            ao: outputs.analog.map(|output| output.value),
+            ai_types: outputs.analog_input_types,
+            ao_types: outputs.analog.map(|output| output.kind),
+            robot: [0, 1, 2, 3, 4, 5].map(|i| image.register(reg::ROBOT_STATE + i)),
+        }
+    }
+
+    /// `,"io":{...},"robot":{...` (the robot object left open for its link).
+    fn write(&self, out: &mut Out<'_>, source: RobotSource) {
+        let pair = |out: &mut Out<'_>, [a, b]: [u16; 2]| {
+            out.text("[");
+            out.number(a);
+            out.text(",");
+            out.number(b);
+            out.text("]");
+        };
+        let types = |out: &mut Out<'_>, [a, b]: [AnalogType; 2]| {
+            let name = |kind| match kind {
+                AnalogType::Current => "\"current\"",
+                AnalogType::Voltage => "\"voltage\"",
+            };
+            out.text("[");
+            out.text(name(a));
+            out.text(",");
+            out.text(name(b));
+            out.text("]");
+        };
+        out.text("},\"io\":{\"di\":");
+        out.number(self.di);
+        out.text(",\"do\":");
+        out.number(self.do_);
+        out.text(",\"tool_di\":");
+        out.number(self.tool_di);
+        out.text(",\"tool_do\":");
+        out.number(self.tool_do);
+        out.text(",\"ai\":");
+        pair(out, self.ai);
+        out.text(",\"ao\":");
+        pair(out, self.ao);
+        out.text(",\"ai_types\":");
+        types(out, self.ai_types);
+        out.text(",\"ao_types\":");
+        types(out, self.ao_types);
+        out.text("},\"robot\":{\"source\":");
+        out.string(match source {
+            RobotSource::None => "none",
+            RobotSource::Sim => "sim",
+            RobotSource::Link => "link",
+        });
+        let [state, servo_on, emergency_stop, safety_stop, direct_teach, power_button] = self.robot;
+        out.text(",\"state\":");
+        out.string(robot_state_name(state));
+        out.text(",\"state_code\":");
+        out.number(state);
+        out.text(",\"servo_on\":");
+        out.boolean(servo_on != 0);
+        out.text(",\"emergency_stop\":");
+        out.boolean(emergency_stop != 0);
+        out.text(",\"safety_stop\":");
+        out.number(safety_stop);
+        out.text(",\"direct_teach\":");
+        out.boolean(direct_teach != 0);
+        out.text(",\"power_button\":");
+        out.boolean(power_button != 0);
+    }
+}
+
+/// Register 259's value by name (docs/data-map.md, *Robot state*).
+fn robot_state_name(code: u16) -> &'static str {
+    match code {
+        0 => "initializing",
+        1 => "standby",
+        2 => "operating",
+        3 => "safe_off",
+        4 => "teaching",
+        5 => "safe_stop",
+        6 => "emergency_stop",
+        7 => "homing",
+        8 => "recovery",
+        9 => "safe_stop_2",
+        10 => "safe_off_2",
+        15 => "not_ready",
+        _ => "unknown",
+    }
+}
+
+/// Every setting grouped as DEVICE.md's table, numbers unquoted, and the
+/// admin group with only whether a password is set; with
+/// `reboot_required` after a change.
+pub(super) fn settings_document(
+    out: &mut Out<'_>,
+    settings: &Settings,
+    password_set: bool,
+    reboot_required: Option<bool>,
+) {
+    out.clear();
+    let mut group = "";
+    for &field in Field::ALL {
+        if field.group() != group {
+            out.text(if group.is_empty() { "{\"" } else { "},\"" });
+            group = field.group();
+            out.text(group);
+            out.text("\":{\"");
+        } else {
+            out.text(",\"");
+        }
+        out.text(field.name());
+        out.text("\":");
+        match field.kind() {
+            Kind::Number => {
+                let _ = settings.show(field, out);
+            }
+            Kind::Text => out.string_with(|w| settings.show(field, w)),
+        }
+    }
+    out.text("},\"admin\":{\"password_set\":");
+    out.boolean(password_set);
+    out.text("}");
+    if let Some(reboot_required) = reboot_required {
+        out.text(",\"reboot_required\":");
+        out.boolean(reboot_required);
+    }
+    out.text("}");
+}
+
+/// An error's key in a 400's `errors`.
+#[derive(Clone, Copy, Debug)]
+enum Key<'a> {
+    /// A setting: `group.name`.
+    Field(Field),
+    /// A key of the API's own: `password`.
+    Name(&'static str),
+    /// A key from the body that names nothing: `group`, or `group.name`.
+    Unknown(Str<'a>, Option<Str<'a>>),
+}
+
+impl Key<'_> {
+    fn same(&self, other: &Key<'_>) -> bool {
+        match (self, other) {
+            (Key::Field(a), Key::Field(b)) => a == b,
+            (Key::Name(a), Key::Name(b)) => a == b,
+            (Key::Unknown(a, None), Key::Unknown(b, None)) => a.same(b),
+            (Key::Unknown(a, Some(x)), Key::Unknown(b, Some(y))) => a.same(b) && x.same(y),
+            _ => false,
+        }
+    }
+}
+
+/// A 400's `{"errors": {...}}`, written as the errors are found: one
+/// message per key (the first), as many as fit the response.
+struct Report<'o, 'b, 'a> {
+    out: &'o mut Out<'b>,
+    /// Keys reported, but fields (a bit each in `fields`).
+    keys: heapless::Vec<Key<'a>, MAX_UNKNOWN_LISTED>,
+    fields: u32,
+    /// Errors found; `listed` of them written.
+    count: usize,
+    listed: usize,
+    /// The response is full: later errors are not listed.
+    full: bool,
+}
+
+impl<'o, 'b, 'a> Report<'o, 'b, 'a> {
+    fn new(out: &'o mut Out<'b>) -> Self {
+        out.clear();
+        Self { out, keys: heapless::Vec::new(), fields: 0, count: 0, listed: 0, full: false }
+    }
+
+    fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+
+    fn add(&mut self, key: Key<'a>, message: &str) {
+        match key {
+            Key::Field(field) => {
+                let bit = Field::ALL.iter().position(|&f| f == field).map_or(0, |i| 1u32 << (i % 32));
+                if self.fields & bit != 0 {
+                    return;
+                }
+                self.fields |= bit;
+            }
+            _ if self.keys.iter().any(|k| k.same(&key)) => return,
+            _ => {
+                if self.keys.push(key).is_err() {
+                    // Refused all the same; not listed.
+                    self.count += 1;
+                    return;
+                }
+            }
+        }
+        self.count += 1;
+        if self.full {
+            return;
+        }
+        if self.count == 1 {
+            self.out.text("{\"errors\":{");
+            // Room for the closing brackets, whatever comes.
+            self.out.reserve(2);
+        }
+        let mark = self.out.mark();
+        if self.listed > 0 {
+            self.out.text(",");
+        }
+        match key {
+            Key::Field(field) => self.out.string(field.key()),
+            Key::Name(name) => self.out.string(name),
+            Key::Unknown(group, None) => self.out.string_of(group.bytes()),
+            Key::Unknown(group, Some(name)) => self.out.string_of(group.bytes().chain(*b".").chain(name.bytes())),
+        }
+        self.out.text(":");
+        self.out.string(message);
+        if self.out.overflowed() {
+            self.out.truncate(mark);
+            self.full = true;
+        } else {
+            self.listed += 1;
+        }
+    }
+
+    fn finish(self) {
+        self.out.reserve(0);
+        self.out.text("}}");
+    }
+}
+
+/// Applies the settings `body` holds to `settings`, each by its own rule;
+/// every problem goes to `report`. `Err` only when the body is not JSON.
+fn patch<'a>(body: &'a [u8], settings: &mut Settings, report: &mut Report<'_, '_, 'a>) -> Result<(), Malformed> {
+    let mut json = Reader::new(body);
+    json.begin_object()?;
+    let mut seen = 0u32;
+    while let Some(group) = json.next_key()? {
+        let name = Field::ALL.iter().map(|f| f.group()).chain([ADMIN]).find(|&name| group.is(name));
+        let Some(name) = name else {
+            json.value()?;
+            report.add(Key::Unknown(group, None), "unknown group");
+            continue;
+        };
+        if json.peek() != Some(b'{') {
+            json.value()?;
+            report.add(Key::Unknown(group, None), "must be an object");
+            continue;
+        }
+        json.begin_object()?;
+        while let Some(member) = json.next_key()? {
+            let value = json.value()?;
+            if name == ADMIN {
+                // `password_set` is read-only (so a document from GET can be
+                // sent back); the password has its own endpoint.
+                if !member.is("password_set") {
+                    let message =
+                        if member.is("password") { "set it with PUT /api/password" } else { "unknown setting" };
+                    report.add(Key::Unknown(group, Some(member)), message);
+                }
+                continue;
+            }
+            let found = Field::ALL.iter().enumerate().find(|(_, f)| f.group() == name && member.is(f.name()));
+            let Some((index, &field)) = found else {
+                report.add(Key::Unknown(group, Some(member)), "unknown setting");
+                continue;
+            };
+            let bit = 1u32 << (index % 32);
+            if seen & bit != 0 {
+                report.add(Key::Field(field), "given more than once");
+                continue;
+            }
+            seen |= bit;
+            let mut text = [0u8; MAX_VALUE_LEN];
+            let result = match value {
+                Value::Number(number) => settings.set(field, number),
+                Value::String(string) => match string.decode(&mut text) {
+                    Some(string) => settings.set(field, string),
+                    None => Err(field.rule()),
+                },
+                _ => Err("must be a number or a string"),
+            };
+            if let Err(message) = result {
+                report.add(Key::Field(field), message);
+            }
+        }
+    }
+    json.end()
+}
+
+/// The password `body` holds, decoded into `password`: its length, `None`
+/// when absent, or too long for `password` (then `Some(MAX + 1)`).
+fn read_password<'a>(
+    body: &'a [u8],
+    password: &mut [u8; MAX_PASSWORD_LEN],
+    report: &mut Report<'_, '_, 'a>,
+) -> Result<Option<usize>, Malformed> {
+    let mut json = Reader::new(body);
+    json.begin_object()?;
+    let mut len = None;
+    while let Some(key) = json.next_key()? {
+        let value = json.value()?;
+        if !key.is("password") {
+            report.add(Key::Unknown(key, None), "unknown field");
+            continue;
+        }
+        if len.is_some() {
+            report.add(Key::Name("password"), "given more than once");
+            continue;
+        }
+        match value {
+            Value::String(text) => {
+                len = Some(text.decode(password).map_or(MAX_PASSWORD_LEN + 1, str::len));
+            }
+            _ => report.add(Key::Name("password"), "must be a string"),
+        }
+    }
+    json.end()?;
+    Ok(len)
+}
+
+/// 400 for a body that is not JSON.
+fn malformed_refusal(out: &mut Out<'_>, malformed: Malformed) -> Reply {
+    out.clear();
+    out.text("{\"errors\":{\"body\":\"not valid JSON (at byte ");
+    out.number(malformed.at);
+    out.text(")\"}}");
+    Reply::new(StatusCode::BAD_REQUEST)
+}
+
+/// The answer to a body that could not be read whole.
+fn body_refusal(out: &mut Out<'_>, error: &picoserve::request::ReadAllBodyError) -> Reply {
+    use picoserve::request::ReadAllBodyError;
+    match error {
+        ReadAllBodyError::BufferIsTooSmall { .. } => {
+            refusal(out, StatusCode::PAYLOAD_TOO_LARGE, "body", "over the size limit")
+        }
+        ReadAllBodyError::IO(embedded_io_async::ErrorKind::TimedOut) => {
+            refusal(out, StatusCode::REQUEST_TIMEOUT, "request", "not complete in time")
+        }
+        ReadAllBodyError::UnexpectedEof | ReadAllBodyError::IO(_) => {
+            refusal(out, StatusCode::BAD_REQUEST, "body", "shorter than its Content-Length")
+        }
+    }
+}
+
+/// The answer to a change the backend refused.
+fn refused_change(out: &mut Out<'_>, refused: Refusal, message: &str) -> Reply {
+    let status = match refused {
+        Refusal::Storage => StatusCode::INTERNAL_SERVER_ERROR,
+        Refusal::Unsupported => StatusCode::NOT_IMPLEMENTED,
+    };
+    refusal(out, status, "request", message)
+}

@@ -1,0 +1,55 @@
+//! Accepting HTTP clients on an embassy-net stack: one task per connection
+//! ([`super::MAX_HTTP_CONNECTIONS`] of them), each with its socket and its
+//! [`Buffers`] in its static storage.
+
+use embassy_net::Stack;
+use embassy_net::tcp::TcpSocket;
+use embassy_time::{Duration, with_timeout};
+
+use super::{Backend, Buffers, Http, serve};
+use crate::server::{CLOSE_TIMEOUT, Peer};
+
+/// Receive buffer of each HTTP socket (a request is read as it comes).
+pub const SOCKET_RX_LEN: usize = 512;
+/// Transmit buffer of each HTTP socket (a response is written as it is taken).
+pub const SOCKET_TX_LEN: usize = 512;
+/// A connection whose peer stops acknowledging for this long is dropped by the stack.
+const TCP_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Accepts clients on `port` and serves them, one connection at a time,
+/// forever. Run [`super::MAX_HTTP_CONNECTIONS`] of these.
+pub async fn listen<B: Backend>(stack: Stack<'_>, http: &Http<'_, B>, port: u16) -> ! {
+    let mut rx = [0u8; SOCKET_RX_LEN];
+    let mut tx = [0u8; SOCKET_TX_LEN];
+    let mut buffers = Buffers::new();
+    loop {
+        let mut socket = TcpSocket::new(stack, &mut rx, &mut tx);
+        socket.set_timeout(Some(TCP_TIMEOUT));
+        if let Err(e) = socket.accept(port).await {
+            warn!("http: accept failed: {:?}", e);
+            continue;
+        }
+        let endpoint = socket.remote_endpoint();
+        if endpoint.is_none() {
+            // Reset by the client before this task ran.
+            continue;
+        }
+        let peer = Peer::of(endpoint);
+        let served = {
+            let (reader, writer) = socket.split();
+            serve(http, peer.address, reader, writer, &mut buffers).await
+        };
+        if let Err(e) = served {
+            info!("http: {}: {}", peer, e);
+        }
+        socket.close();
+        let _ = with_timeout(CLOSE_TIMEOUT, socket.flush()).await;
+        socket.abort();
+        let _ = with_timeout(CLOSE_TIMEOUT, socket.flush()).await;
+        drop(socket);
+        if let Ok(Some(action)) = served {
+            info!("http: {:?} requested by {}", action, peer);
+            http.perform(action).await;
+        }
+    }
+}

@@ -1,0 +1,246 @@
+//! What the HTTP tests share: a backend that records what it is asked, and
+//! a client that sends bytes over test-support's duplex and reads the
+//! response back, on embassy-time's mock clock.
+
+use std::cell::{Cell, RefCell};
+use std::future::Future;
+use std::pin::Pin;
+use std::task::Poll;
+
+use embassy_time::Duration;
+use test_support::duplex::{Wire, poll_once};
+
+use super::{Action, Backend, Buffers, Error, Http, NetworkStatus, Refusal, serve};
+use crate::device::Device;
+use crate::server::testing::{Clock, server_with};
+use crate::server::{Config, Server, Watchdog};
+use crate::settings::{Cidr, NetMode, Settings};
+
+/// The client the tests talk from (`ALLOWED` is in `allow_write` when one is set).
+pub const CLIENT: [u8; 4] = [10, 0, 0, 2];
+
+/// A backend over a real server and device, keeping its settings and
+/// password in memory.
+pub struct TestBackend {
+    pub server: &'static Server<'static, Device<'static>>,
+    pub settings: RefCell<Settings>,
+    pub password: RefCell<Option<Vec<u8>>>,
+    /// Calls of `apply` that saved.
+    pub applied: Cell<usize>,
+    /// The next `apply` or `set_password` fails so.
+    pub fail: Cell<Option<Refusal>>,
+    pub located: Cell<Option<Duration>>,
+    pub reboots: Cell<usize>,
+    pub factory_resets: Cell<usize>,
+}
+
+impl TestBackend {
+    pub fn new() -> Self {
+        let settings = Settings::DEFAULT;
+        let (server, _) = server_with(settings.server_config(), Watchdog::OFF);
+        Self {
+            server,
+            settings: RefCell::new(settings),
+            password: RefCell::new(None),
+            applied: Cell::new(0),
+            fail: Cell::new(None),
+            located: Cell::new(None),
+            reboots: Cell::new(0),
+            factory_resets: Cell::new(0),
+        }
+    }
+}
+
+impl Backend for TestBackend {
+    fn server(&self) -> &Server<'_, Device<'_>> {
+        self.server
+    }
+
+    fn settings(&self) -> Settings {
+        *self.settings.borrow()
+    }
+
+    async fn apply(&self, settings: &Settings) -> Result<bool, Refusal> {
+        if let Some(refusal) = self.fail.take() {
+            return Err(refusal);
+        }
+        let old = self.settings.replace(*settings);
+        self.server.set_config(Config { port: self.server.config().port, ..settings.server_config() });
+        self.server.service().set_watchdog(settings.watchdog());
+        self.applied.set(self.applied.get() + 1);
+        Ok(old.reboot_required(settings))
+    }
+
+    fn password_set(&self) -> bool {
+        self.password.borrow().is_some()
+    }
+
+    async fn verify_password(&self, password: &[u8]) -> bool {
+        self.password.borrow().as_deref() == Some(password)
+    }
+
+    async fn set_password(&self, password: &[u8]) -> Result<(), Refusal> {
+        if let Some(refusal) = self.fail.take() {
+            return Err(refusal);
+        }
+        *self.password.borrow_mut() = Some(password.to_vec());
+        Ok(())
+    }
+
+    fn reboot(&self) {
+        self.reboots.set(self.reboots.get() + 1);
+    }
+
+    async fn factory_reset(&self) {
+        self.factory_resets.set(self.factory_resets.get() + 1);
+    }
+
+    fn locate(&self, duration: Duration) {
+        self.located.set(Some(duration));
+    }
+
+    fn model(&self) -> &'static str {
+        "test-board"
+    }
+
+    fn mac(&self) -> [u8; 6] {
+        [0x02, 0x4d, 0x42, 0x53, 0x49, 0x4d]
+    }
+
+    fn network(&self) -> NetworkStatus {
+        NetworkStatus {
+            mode: NetMode::Static,
+            address: Cidr::parse_optional("10.0.0.1/24").ok().flatten(),
+            gateway: None,
+            link: true,
+        }
+    }
+}
+
+/// The API over a fresh [`TestBackend`] (leaked: tests only).
+pub fn api() -> &'static Http<'static, TestBackend> {
+    Box::leak(Box::new(Http::new(Box::leak(Box::new(TestBackend::new())))))
+}
+
+/// A response as the client read it.
+#[derive(Debug, Clone)]
+pub struct Response {
+    pub status: u16,
+    pub head: String,
+    pub body: Vec<u8>,
+}
+
+impl Response {
+    /// Splits what the server wrote; `None` when it is not one whole response.
+    pub fn parse(bytes: &[u8]) -> Option<Self> {
+        let end = bytes.windows(4).position(|w| w == b"\r\n\r\n")?;
+        let head = String::from_utf8(bytes[..end].to_vec()).ok()?;
+        let status = head.strip_prefix("HTTP/1.1 ")?.get(..3)?.parse().ok()?;
+        let body = bytes[end + 4..].to_vec();
+        let response = Self { status, head, body };
+        let length: usize = response.header("content-length")?.parse().ok()?;
+        (length == response.body.len()).then_some(response)
+    }
+
+    /// A header's value (the first of that name, any case).
+    pub fn header(&self, name: &str) -> Option<&str> {
+        self.head.lines().skip(1).find_map(|line| {
+            let (n, v) = line.split_once(':')?;
+            n.trim().eq_ignore_ascii_case(name).then_some(v.trim())
+        })
+    }
+
+    /// The body as JSON (the test fails if it is not).
+    pub fn json(&self) -> serde_json::Value {
+        serde_json::from_slice(&self.body)
+            .unwrap_or_else(|e| panic!("not JSON ({e}): {}", String::from_utf8_lossy(&self.body)))
+    }
+}
+
+/// What serving one connection gave.
+pub type Served = Result<Option<Action>, Error>;
+
+/// One connection being served: the client's wire and the server's future.
+pub struct Connection {
+    pub wire: Wire,
+    future: Pin<Box<dyn Future<Output = Served>>>,
+    pub result: Option<Served>,
+}
+
+impl Connection {
+    /// A connection from `peer` to `http`.
+    pub fn open(http: &'static Http<'static, TestBackend>, peer: Option<[u8; 4]>) -> Self {
+        let (wire, end) = Wire::new();
+        let (reader, writer) = end.split();
+        let buffers: &'static mut Buffers = Box::leak(Box::default());
+        let future = Box::pin(serve(http, peer, reader, writer, buffers));
+        Self { wire, future, result: None }
+    }
+
+    /// Polls the server until it ends or waits (for bytes or for time):
+    /// whether it has ended.
+    pub fn poll(&mut self) -> bool {
+        if self.result.is_none() {
+            // Each poll makes progress or waits: a few dozen are plenty.
+            for _ in 0..64 {
+                if let Poll::Ready(result) = poll_once(self.future.as_mut()) {
+                    self.result = Some(result);
+                    break;
+                }
+            }
+        }
+        self.result.is_some()
+    }
+
+    /// Polls, moving the clock on by `step` while the server waits, until it
+    /// ends or `limit` has passed: the time it took.
+    pub fn run(&mut self, clock: &Clock, step: Duration, limit: Duration) -> Option<Duration> {
+        let mut waited = Duration::from_ticks(0);
+        loop {
+            if self.poll() {
+                return Some(waited);
+            }
+            if waited >= limit {
+                return None;
+            }
+            clock.advance(step);
+            waited += step;
+        }
+    }
+}
+
+/// Sends `request` whole from `peer` and serves it to the end (the clock
+/// moves on while the server waits): the response and the result.
+pub fn exchange(
+    http: &'static Http<'static, TestBackend>,
+    clock: &Clock,
+    peer: Option<[u8; 4]>,
+    request: &[u8],
+) -> (Option<Response>, Served) {
+    let mut connection = Connection::open(http, peer);
+    connection.wire.send(request);
+    let took = connection.run(clock, Duration::from_millis(100), Duration::from_secs(30));
+    assert!(took.is_some(), "the connection ends");
+    let bytes = connection.wire.take_replies();
+    (Response::parse(&bytes), connection.result.unwrap_or(Err(Error::Timeout)))
+}
+
+/// A request with `body` and the headers given (each ending `\r\n`).
+pub fn request(method: &str, path: &str, headers: &str, body: &str) -> Vec<u8> {
+    let length = if body.is_empty() { String::new() } else { format!("Content-Length: {}\r\n", body.len()) };
+    format!("{method} {path} HTTP/1.1\r\nHost: mbio\r\n{headers}{length}\r\n{body}").into_bytes()
+}
+
+/// `Authorization: Basic` for `admin` and `password`.
+pub fn basic(password: &str) -> String {
+    let plain = format!("admin:{password}");
+    let table = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut text = String::new();
+    for chunk in plain.as_bytes().chunks(3) {
+        let n = chunk.iter().enumerate().fold(0u32, |n, (i, &b)| n | u32::from(b) << (16 - 8 * i));
+        for i in 0..4 {
+            text.push(if i <= chunk.len() { char::from(table[(n >> (18 - 6 * i) & 63) as usize]) } else { '=' });
+        }
+    }
+    format!("Authorization: Basic {text}\r\n")
+}

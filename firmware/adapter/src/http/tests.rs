@@ -1,0 +1,603 @@
+//! The API over test-support's duplex on the mock clock: every endpoint,
+//! every refusal, the limits and the deadlines, and random streams.
+
+use embassy_time::{Duration, Instant};
+use proptest::prelude::*;
+use serde_json::json;
+
+use super::testing::{CLIENT, Connection, Response, api, basic, exchange, request};
+use super::*;
+use crate::server::testing::Clock;
+use crate::settings::{Field, Settings};
+
+fn get(http: &'static Http<'static, testing::TestBackend>, clock: &Clock, path: &str) -> Response {
+    let (response, result) = exchange(http, clock, Some(CLIENT), &request("GET", path, "", ""));
+    assert_eq!(result, Ok(None));
+    response.expect("a whole response")
+}
+
+fn send(
+    http: &'static Http<'static, testing::TestBackend>,
+    clock: &Clock,
+    method: &str,
+    path: &str,
+    headers: &str,
+    body: &str,
+) -> Response {
+    let (response, _) = exchange(http, clock, Some(CLIENT), &request(method, path, headers, body));
+    response.expect("a whole response")
+}
+
+fn put_settings(http: &'static Http<'static, testing::TestBackend>, clock: &Clock, body: &str) -> Response {
+    send(http, clock, "PUT", "/api/settings", "", body)
+}
+
+#[test]
+fn the_status_document_shows_the_device() {
+    let clock = Clock::take();
+    let http = api();
+    let server = http.backend().server;
+    server.service().set_digital_inputs(0b101);
+    server.service().update(|image| image.set_register(crate::map::table::reg::DIGITAL_OUTPUTS, 0x8001));
+    server.slots().open(0, 8, Instant::now(), [198, 18, 0, 1], true);
+    clock.advance(Duration::from_secs(3));
+    let response = get(http, &clock, "/api/status");
+    assert_eq!(response.status, 200);
+    assert_eq!(response.header("content-type"), Some("application/json"));
+    assert_eq!(response.header("cache-control"), Some("no-store"));
+    assert_eq!(response.header("connection"), Some("close"));
+    let status = response.json();
+    let device = &status["device"];
+    assert_eq!(device["name"], "mbio-53494d", "the default name, from the MAC");
+    assert_eq!(device["model"], "test-board");
+    assert_eq!(device["firmware"], "0.1.0");
+    assert_eq!(device["uptime_s"], 3);
+    assert_eq!(device["mac"], "02:4d:42:53:49:4d");
+    assert!(device["cpu_load_percent"].is_null() && device["reset_reason"].is_null(), "hooks not implemented");
+    assert_eq!(status["network"], json!({"mode": "static", "address": "10.0.0.1/24", "gateway": null, "link": true}));
+    let io = &status["io"];
+    assert_eq!((io["di"].as_u64(), io["do"].as_u64()), (Some(0b101), Some(0x8001)));
+    assert_eq!(io["ai"], json!([0, 0]));
+    assert_eq!(io["ao_types"], json!(["current", "current"]));
+    assert_eq!(status["robot"]["state"], "not_ready");
+    assert_eq!(status["robot"]["state_code"], 15);
+    assert_eq!(status["robot"]["source"], "none");
+    assert!(status["robot"]["link"].is_null());
+    assert_eq!(
+        status["connections"],
+        json!([{"peer": "198.18.0.1", "requests": null, "idle_ms": 3000, "read_only": true}])
+    );
+    assert_eq!(status["counters"].as_object().unwrap().len(), 12);
+    assert_eq!(status["counters"]["requests"], 0);
+    assert_eq!(status["watchdog"], json!({"timeout_ms": 0, "tripped": false}));
+    assert!(status["storage"].is_null());
+    assert_eq!(status["admin"], json!({"password_set": false}));
+}
+
+#[test]
+fn the_settings_document_has_every_field_grouped_and_no_secret() {
+    let clock = Clock::take();
+    let http = api();
+    *http.backend().password.borrow_mut() = Some(b"correct horse".to_vec());
+    let response = get(http, &clock, "/api/settings");
+    assert_eq!(response.status, 200);
+    assert!(!String::from_utf8_lossy(&response.body).contains("horse"));
+    let document = response.json();
+    let groups = document.as_object().unwrap();
+    assert_eq!(groups.keys().collect::<Vec<_>>(), ["admin", "device", "modbus", "network", "robot", "watchdog"]);
+    for &field in Field::ALL {
+        let value = &document[field.group()][field.name()];
+        match field.kind() {
+            crate::settings::Kind::Number => assert!(value.is_u64(), "{} is a number: {value}", field.key()),
+            crate::settings::Kind::Text => assert!(value.is_string(), "{} is text: {value}", field.key()),
+        }
+    }
+    let fields: usize = groups.values().map(|group| group.as_object().unwrap().len()).sum();
+    assert_eq!(fields, Field::ALL.len() + 1, "every setting and admin.password_set");
+    assert_eq!(document["modbus"]["unit_id"], "any");
+    assert_eq!(document["modbus"]["port"], 502);
+    assert_eq!(document["admin"], json!({"password_set": true}));
+}
+
+#[test]
+fn a_change_applies_a_subset_and_says_whether_to_reboot() {
+    let clock = Clock::take();
+    let http = api();
+    let backend = http.backend();
+    let response = put_settings(http, &clock, r#"{"modbus": {"unit_id": 7, "idle_timeout_s": "30"}}"#);
+    assert_eq!(response.status, 200, "{}", String::from_utf8_lossy(&response.body));
+    let document = response.json();
+    assert_eq!(document["modbus"]["unit_id"], "7");
+    assert_eq!(document["modbus"]["idle_timeout_s"], 30);
+    assert_eq!(document["reboot_required"], false);
+    assert_eq!(backend.settings().modbus.unit_id, Some(7));
+    assert_eq!(backend.server.config().policy.unit_id, Some(7), "in force at once");
+    assert_eq!(backend.applied.get(), 1);
+
+    let response = put_settings(http, &clock, r#"{"modbus": {"port": 1502}, "network": {"mode": "dhcp"}}"#);
+    assert_eq!(response.json()["reboot_required"], true, "the port applies after a reboot");
+    assert_eq!(backend.settings().modbus.port, 1502);
+
+    // The document from GET, sent back as it is: nothing changes.
+    let document = get(http, &clock, "/api/settings");
+    let response = put_settings(http, &clock, std::str::from_utf8(&document.body).unwrap());
+    assert_eq!(response.status, 200);
+    assert_eq!(response.json()["reboot_required"], false);
+    assert_eq!(backend.applied.get(), 2, "no change, no save");
+    assert_eq!(put_settings(http, &clock, "{}").status, 200);
+    assert_eq!(backend.applied.get(), 2);
+}
+
+#[test]
+fn a_bad_change_is_refused_field_by_field_and_changes_nothing() {
+    let clock = Clock::take();
+    let http = api();
+    let backend = http.backend();
+    let before = backend.settings();
+    let body = r#"{
+        "modbus": {"unit_id": 300, "port": true, "write_policy": "loose", "colour": "red", "unit_id": 5},
+        "network": {"gateway": "10.0.0.1"},
+        "watchdog": {"timeout_ms": [100]},
+        "robot": 7,
+        "nonsense": {"a": 1},
+        "admin": {"password": "12345678", "password_set": false}
+    }"#;
+    let response = put_settings(http, &clock, body);
+    assert_eq!(response.status, 400);
+    assert_eq!(
+        response.json(),
+        json!({"errors": {
+            "modbus.unit_id": "any, or 1-247",
+            "modbus.port": "must be a number or a string",
+            "modbus.write_policy": "seed or strict",
+            "modbus.colour": "unknown setting",
+            "watchdog.timeout_ms": "must be a number or a string",
+            "robot": "must be an object",
+            "nonsense": "unknown group",
+            "admin.password": "set it with PUT /api/password",
+        }})
+    );
+    assert_eq!(backend.settings(), before);
+    assert_eq!(backend.applied.get(), 0);
+    // Each field's own rules pass: the rules between fields are checked.
+    let response = put_settings(http, &clock, r#"{"network": {"mode": "static", "gateway": "10.0.0.1"}}"#);
+    assert_eq!(response.status, 400);
+    assert_eq!(
+        response.json(),
+        json!({"errors": {"network.address": "required when the mode is static", "network.gateway": "needs an address"}})
+    );
+    let response = put_settings(http, &clock, r#"{"modbus": {"unit_id": 5, "unit_id": 5}}"#);
+    assert_eq!(response.json(), json!({"errors": {"modbus.unit_id": "given more than once"}}));
+    assert_eq!(backend.settings(), before);
+    assert_eq!(backend.applied.get(), 0);
+}
+
+#[test]
+fn a_body_that_is_not_json_is_refused_where_it_breaks() {
+    let clock = Clock::take();
+    let http = api();
+    for (body, at) in [("", 0), ("{\"modbus\": {\"unit_id\": 7}", 25), ("[1]", 0), ("{\"a\":1}x", 7)] {
+        let response = put_settings(http, &clock, body);
+        assert_eq!(response.status, 400, "{body:?}");
+        assert_eq!(response.json(), json!({"errors": {"body": format!("not valid JSON (at byte {at})")}}), "{body:?}");
+    }
+    assert_eq!(http.backend().applied.get(), 0);
+}
+
+#[test]
+fn a_failed_save_changes_nothing() {
+    let clock = Clock::take();
+    let http = api();
+    let backend = http.backend();
+    for (refusal, status) in [(Refusal::Storage, 500), (Refusal::Unsupported, 501)] {
+        backend.fail.set(Some(refusal));
+        let response = put_settings(http, &clock, r#"{"modbus": {"unit_id": 9}}"#);
+        assert_eq!(response.status, status);
+        assert_eq!(response.json()["errors"]["request"], "the settings were not saved; nothing changed");
+        assert_eq!(backend.settings(), Settings::DEFAULT);
+    }
+}
+
+#[test]
+fn changes_need_the_password_once_one_is_set() {
+    let clock = Clock::take();
+    let http = api();
+    let backend = http.backend();
+    *backend.password.borrow_mut() = Some(b"s3cret-pass".to_vec());
+    let body = r#"{"modbus": {"unit_id": 3}}"#;
+    let response = put_settings(http, &clock, body);
+    assert_eq!(response.status, 401);
+    assert_eq!(response.header("www-authenticate"), Some("Basic realm=\"mbio\""));
+    for post in ["/api/reboot", "/api/factory-reset", "/api/locate"] {
+        assert_eq!(send(http, &clock, "POST", post, "", "").status, 401, "{post}");
+    }
+    // Wrong credentials: answered after the delay, not before.
+    let mut connection = Connection::open(http, Some(CLIENT));
+    connection.wire.send(&request("PUT", "/api/settings", &basic("guess-1234"), body));
+    let took = connection.run(&clock, Duration::from_millis(100), Duration::from_secs(10)).unwrap();
+    assert_eq!(took, AUTH_FAILURE_DELAY);
+    assert_eq!(Response::parse(&connection.wire.take_replies()).unwrap().status, 401);
+    assert_eq!(send(http, &clock, "PUT", "/api/settings", "Authorization: Bearer x\r\n", body).status, 401);
+    assert_eq!(backend.applied.get(), 0);
+
+    let response = send(http, &clock, "PUT", "/api/settings", &basic("s3cret-pass"), body);
+    assert_eq!(response.status, 200);
+    assert_eq!(backend.settings().modbus.unit_id, Some(3));
+    // Reading never needs it.
+    assert_eq!(get(http, &clock, "/api/status").json()["admin"]["password_set"], true);
+}
+
+#[test]
+fn changes_come_only_from_addresses_allow_write_admits() {
+    let clock = Clock::take();
+    let http = api();
+    let backend = http.backend();
+    let response = put_settings(http, &clock, r#"{"modbus": {"allow_write": "10.0.0.0/24"}}"#);
+    assert_eq!(response.status, 200);
+    let body = r#"{"modbus": {"unit_id": 4}}"#;
+    for peer in [Some([10, 0, 1, 2]), None] {
+        let (response, _) = exchange(http, &clock, peer, &request("PUT", "/api/settings", "", body));
+        let response = response.unwrap();
+        assert_eq!(response.status, 403, "{peer:?}");
+        assert_eq!(response.json()["errors"]["request"], "this address may not change the device (modbus.allow_write)");
+        let (response, _) = exchange(http, &clock, peer, &request("POST", "/api/reboot", "", ""));
+        assert_eq!(response.unwrap().status, 403);
+    }
+    // Even with the right password, from outside.
+    *backend.password.borrow_mut() = Some(b"s3cret-pass".to_vec());
+    let (response, _) =
+        exchange(http, &clock, Some([192, 168, 0, 1]), &request("PUT", "/api/settings", &basic("s3cret-pass"), body));
+    assert_eq!(response.unwrap().status, 403);
+    assert_eq!(backend.settings().modbus.unit_id, None);
+    // Reading is for everyone.
+    let (response, _) = exchange(http, &clock, Some([192, 168, 0, 1]), &request("GET", "/api/settings", "", ""));
+    assert_eq!(response.unwrap().status, 200);
+}
+
+#[test]
+fn the_password_is_set_first_freely_then_only_with_the_current_one() {
+    let clock = Clock::take();
+    let http = api();
+    let backend = http.backend();
+    for (body, message) in [
+        (r#"{"password": "short"}"#, json!({"password": "8-64 bytes"})),
+        (&format!(r#"{{"password": "{}"}}"#, "x".repeat(65)), json!({"password": "8-64 bytes"})),
+        (r#"{"password": 12345678}"#, json!({"password": "must be a string"})),
+        (r#"{}"#, json!({"password": "required"})),
+        (r#"{"password": "12345678", "user": "root"}"#, json!({"user": "unknown field"})),
+    ] {
+        let response = send(http, &clock, "PUT", "/api/password", "", body);
+        assert_eq!(response.status, 400, "{body}");
+        assert_eq!(response.json(), json!({ "errors": message }), "{body}");
+    }
+    assert!(!backend.password_set());
+    let response = send(http, &clock, "PUT", "/api/password", "", &format!(r#"{{"password": "{}"}}"#, "é".repeat(32)));
+    assert_eq!(response.status, 200, "64 bytes of UTF-8");
+    assert_eq!(response.json(), json!({"admin": {"password_set": true}}));
+    assert_eq!(backend.password.borrow().as_ref().unwrap().len(), 64);
+
+    let again = r#"{"password": "n3w-password"}"#;
+    assert_eq!(send(http, &clock, "PUT", "/api/password", "", again).status, 401);
+    let current = basic(&"é".repeat(32));
+    assert_eq!(send(http, &clock, "PUT", "/api/password", &current, again).status, 200);
+    assert_eq!(backend.password.borrow().as_deref(), Some(b"n3w-password".as_slice()));
+    assert_eq!(get(http, &clock, "/api/settings").json()["admin"]["password_set"], true);
+}
+
+#[test]
+fn reboot_factory_reset_and_locate() {
+    let clock = Clock::take();
+    let http = api();
+    let backend = http.backend();
+    let (response, result) = exchange(http, &clock, Some(CLIENT), &request("POST", "/api/reboot", "", ""));
+    let response = response.unwrap();
+    assert_eq!((response.status, response.json()), (202, json!({"rebooting": true})));
+    assert_eq!(result, Ok(Some(Action::Reboot)), "left to the caller, after the connection closes");
+    assert_eq!(backend.reboots.get(), 0);
+    embassy_futures::block_on(http.perform(Action::Reboot));
+    assert_eq!(backend.reboots.get(), 1);
+
+    let (response, result) = exchange(http, &clock, Some(CLIENT), &request("POST", "/api/factory-reset", "", ""));
+    assert_eq!(response.unwrap().json(), json!({"factory_reset": true, "rebooting": true}));
+    assert_eq!(result, Ok(Some(Action::FactoryReset)));
+    embassy_futures::block_on(http.perform(Action::FactoryReset));
+    assert_eq!(backend.factory_resets.get(), 1);
+
+    let (response, result) = exchange(http, &clock, Some(CLIENT), &request("POST", "/api/locate", "", "{}"));
+    assert_eq!(response.unwrap().json(), json!({"locating_s": 10}));
+    assert_eq!(result, Ok(None));
+    assert_eq!(backend.located.get(), Some(LOCATE_DURATION));
+}
+
+#[test]
+fn unknown_paths_are_404_and_wrong_methods_405() {
+    let clock = Clock::take();
+    let http = api();
+    for path in ["/", "/api/events", "/api/firmware", "/api/status/", "/api", "/index.html", "/api/STATUS"] {
+        let response = get(http, &clock, path);
+        assert_eq!(response.status, 404, "{path}");
+        assert_eq!(response.json(), json!({"errors": {"request": "no such resource"}}));
+    }
+    assert_eq!(get(http, &clock, "/api/status?x=1#y").status, 200, "a query is ignored");
+    for (method, path, allow) in [
+        ("POST", "/api/status", "GET"),
+        ("DELETE", "/api/settings", "GET, PUT"),
+        ("GET", "/api/password", "PUT"),
+        ("GET", "/api/reboot", "POST"),
+        ("PUT", "/api/locate", "POST"),
+        ("get", "/api/status", "GET"),
+        ("HEAD", "/api/status", "GET"),
+    ] {
+        let response = send(http, &clock, method, path, "", "");
+        assert_eq!(response.status, 405, "{method} {path}");
+        assert_eq!(response.header("allow"), Some(allow));
+    }
+    assert_eq!(http.backend().reboots.get() + http.backend().applied.get(), 0);
+}
+
+#[test]
+fn a_body_over_the_limit_is_refused_before_it_is_read() {
+    let clock = Clock::take();
+    let http = api();
+    let head = format!("PUT /api/settings HTTP/1.1\r\nContent-Length: {}\r\n\r\n", MAX_BODY_LEN + 1);
+    let mut connection = Connection::open(http, Some(CLIENT));
+    connection.wire.send(head.as_bytes());
+    assert!(connection.poll(), "answered at once, without waiting for the body");
+    assert_eq!(connection.result, Some(Err(Error::Limit(Limit::BodyTooLarge))));
+    let response = Response::parse(&connection.wire.take_replies()).unwrap();
+    assert_eq!(response.status, 413);
+    assert_eq!(response.json(), json!({"errors": {"request": "body over 1024 bytes"}}));
+    // The largest body is read: one that fits the limit and breaks a rule.
+    let mut body = r#"{"device": {"name": ""#.to_string();
+    body.push_str(&"a".repeat(MAX_BODY_LEN - body.len() - 3));
+    body.push_str("\"}}");
+    assert_eq!(body.len(), MAX_BODY_LEN);
+    let response = put_settings(http, &clock, &body);
+    assert_eq!(response.status, 400);
+    assert!(response.json()["errors"]["device.name"].is_string());
+    // A length no usize holds.
+    let (response, result) = exchange(
+        http,
+        &clock,
+        Some(CLIENT),
+        b"PUT /api/settings HTTP/1.1\r\nContent-Length: 18446744073709551616\r\n\r\n",
+    );
+    assert_eq!((response.unwrap().status, result), (413, Err(Error::Limit(Limit::BodyTooLarge))));
+    assert_eq!(http.backend().applied.get(), 0);
+}
+
+#[test]
+fn a_head_over_the_limit_is_refused() {
+    let clock = Clock::take();
+    let http = api();
+    let filler = format!("X-Filler: {}\r\n", "a".repeat(MAX_HEAD_LEN));
+    let (response, result) = exchange(http, &clock, Some(CLIENT), &request("GET", "/api/status", &filler, ""));
+    assert_eq!(result, Err(Error::Limit(Limit::HeadTooLarge)));
+    let response = response.unwrap();
+    assert_eq!(response.status, 431);
+    assert_eq!(response.json(), json!({"errors": {"request": "head over 1024 bytes"}}));
+    // Just within it: served.
+    let base = request("GET", "/api/status", "X-Filler: \r\n", "").len();
+    let filler = format!("X-Filler: {}\r\n", "a".repeat(MAX_HEAD_LEN - base));
+    let request = request("GET", "/api/status", &filler, "");
+    assert_eq!(request.len(), MAX_HEAD_LEN);
+    let (response, result) = exchange(http, &clock, Some(CLIENT), &request);
+    assert_eq!((response.unwrap().status, result), (200, Ok(None)));
+}
+
+#[test]
+fn a_half_sent_request_times_out() {
+    let clock = Clock::take();
+    let http = api();
+    let whole = request("PUT", "/api/settings", "", r#"{"modbus": {"unit_id": 7}}"#);
+    for cut in [0, 10, whole.len() - 5] {
+        let mut connection = Connection::open(http, Some(CLIENT));
+        connection.wire.send(&whole[..cut]);
+        let took = connection.run(&clock, Duration::from_millis(100), Duration::from_secs(30));
+        assert_eq!(took, Some(REQUEST_TIMEOUT), "cut at {cut}");
+        assert_eq!(connection.result, Some(Err(Error::Timeout)));
+        let response = Response::parse(&connection.wire.take_replies()).unwrap();
+        assert_eq!(response.status, 408);
+        assert_eq!(response.json(), json!({"errors": {"request": "not complete within 5 s"}}));
+    }
+    // A slow client that keeps sending is cut off all the same.
+    let mut connection = Connection::open(http, Some(CLIENT));
+    let started = Instant::now();
+    for byte in whole.iter().take(60) {
+        connection.wire.send(&[*byte]);
+        assert!(!connection.poll() || Instant::now() - started >= REQUEST_TIMEOUT);
+        clock.advance(Duration::from_millis(100));
+    }
+    assert_eq!(connection.result, Some(Err(Error::Timeout)));
+    assert_eq!(http.backend().applied.get(), 0);
+}
+
+#[test]
+fn every_prefix_of_a_request_is_waited_on_then_answered_or_closed() {
+    let _clock = Clock::take();
+    let http = api();
+    let whole = request("PUT", "/api/settings", "", r#"{"modbus": {"unit_id": 7}}"#);
+    for cut in 0..whole.len() {
+        let mut connection = Connection::open(http, Some(CLIENT));
+        connection.wire.send(&whole[..cut]);
+        assert!(!connection.poll(), "waits for the rest after {cut} bytes");
+        connection.wire.close();
+        assert!(connection.poll(), "a closed connection ends at once ({cut} bytes)");
+        let replies = connection.wire.take_replies();
+        if cut == 0 {
+            assert_eq!(connection.result, Some(Ok(None)), "nothing asked, nothing answered");
+            assert!(replies.is_empty());
+        } else {
+            let status = Response::parse(&replies).map(|r| r.status);
+            assert!(matches!(status, Some(400)), "cut at {cut}: {status:?}");
+        }
+        assert_eq!(http.backend().applied.get(), 0, "cut at {cut}");
+    }
+    // Whole, and in reads of every small size: the same answer.
+    for size in [0, 1, 2, 3, 7, 64] {
+        let mut connection = Connection::open(http, Some(CLIENT));
+        connection.wire.read_sizes([size]);
+        connection.wire.stall_reads(size == 3);
+        connection.wire.write_sizes([size]);
+        connection.wire.send(&whole);
+        assert!(connection.poll(), "size {size}");
+        let response = Response::parse(&connection.wire.take_replies()).unwrap();
+        assert_eq!(response.status, 200, "size {size}");
+    }
+}
+
+#[test]
+fn a_reset_connection_ends_quietly() {
+    let _clock = Clock::take();
+    let http = api();
+    let mut connection = Connection::open(http, Some(CLIENT));
+    connection.wire.send(b"GET /api/sta");
+    assert!(!connection.poll());
+    connection.wire.reset();
+    assert!(connection.poll());
+    assert_eq!(connection.result, Some(Err(Error::Io(embedded_io_async::ErrorKind::ConnectionReset))));
+}
+
+#[test]
+fn garbage_gets_a_400() {
+    let clock = Clock::take();
+    let http = api();
+    for garbage in
+        [&b"\r\n\r\n"[..], b"HELLO\r\n\r\n", b"GET /api/status\r\n\r\n", b"GET / HTTP/1.1\r\nno colon\r\n\r\n"]
+    {
+        let (response, result) = exchange(http, &clock, Some(CLIENT), garbage);
+        assert_eq!(result, Err(Error::BadRequest), "{garbage:?}");
+        assert_eq!(response.map(|r| r.status), Some(400), "picoserve's own 400");
+    }
+}
+
+#[test]
+fn the_largest_documents_fit_the_response_buffer() {
+    let clock = Clock::take();
+    let http = api();
+    let backend = http.backend();
+    // Every slot open, the counters and the clock at their widest.
+    for slot in 0..crate::server::SOCKET_POOL {
+        backend.server.slots().open(slot, crate::server::SOCKET_POOL, Instant::now(), [198, 18, 0, 1], false);
+    }
+    for counter in [&backend.server.stats().requests, &backend.server.stats().bad_protocol] {
+        counter.store(u32::MAX, core::sync::atomic::Ordering::Relaxed);
+    }
+    let mut settings = Settings::DEFAULT;
+    let list = "255.255.255.255/32,".repeat(8);
+    for (field, text) in [
+        (Field::DeviceName, "a".repeat(32)),
+        (Field::ModbusAllowConnect, list.trim_end_matches(',').to_string()),
+        (Field::ModbusAllowWrite, list.trim_end_matches(',').to_string()),
+        (Field::NetworkAddress, "255.255.255.254/32".to_string()),
+        (Field::RobotLinkAddress, "255.255.255.255:65535/255".to_string()),
+    ] {
+        settings.set(field, &text).unwrap();
+    }
+    // Everyone may write: the widest allow-list admits 255.255.255.255/32 only.
+    *backend.settings.borrow_mut() = settings;
+    clock.advance(Duration::from_secs(u64::from(u32::MAX)));
+    let status = get(http, &clock, "/api/status");
+    assert_eq!(status.status, 200);
+    assert_eq!(status.json()["connections"].as_array().unwrap().len(), crate::server::SOCKET_POOL);
+    assert!(status.body.len() <= MAX_RESPONSE_LEN - 64, "{} bytes: keep a margin", status.body.len());
+    let document = get(http, &clock, "/api/settings");
+    assert_eq!(document.status, 200);
+    assert!(document.body.len() <= MAX_BODY_LEN, "the settings document can be sent back: {}", document.body.len());
+    // Every field wrong: every message listed.
+    *backend.settings.borrow_mut() = Settings::DEFAULT;
+    let mut groups: Vec<(&str, Vec<String>)> = Vec::new();
+    for &field in Field::ALL {
+        if groups.last().is_none_or(|(group, _)| *group != field.group()) {
+            groups.push((field.group(), Vec::new()));
+        }
+        groups.last_mut().unwrap().1.push(format!(r#""{}": "-x""#, field.name()));
+    }
+    let groups: Vec<String> = groups.iter().map(|(g, fields)| format!(r#""{g}": {{{}}}"#, fields.join(","))).collect();
+    let response = put_settings(http, &clock, &format!("{{{}}}", groups.join(",")));
+    assert_eq!(response.status, 400);
+    assert_eq!(response.json()["errors"].as_object().unwrap().len(), Field::ALL.len());
+    assert!(response.body.len() <= MAX_RESPONSE_LEN - 64, "{} bytes: keep a margin", response.body.len());
+    // Unknown keys: the first few listed, the change refused all the same.
+    let many: Vec<String> = (0..30).map(|i| format!(r#""k{i}": 1"#)).collect();
+    let response = put_settings(http, &clock, &format!(r#"{{"modbus": {{{}}}}}"#, many.join(",")));
+    assert_eq!(response.status, 400);
+    assert_eq!(response.json()["errors"].as_object().unwrap().len(), 8);
+    assert_eq!(backend.applied.get(), 0);
+}
+
+/// A request mostly well-formed, with random parts: a method, a path, a
+/// few headers and a body that may or may not match its length.
+fn requests() -> impl Strategy<Value = Vec<u8>> {
+    let method = prop::sample::select(vec!["GET", "PUT", "POST", "DELETE", "get", ""]);
+    let path = prop::sample::select(vec![
+        "/api/status",
+        "/api/settings",
+        "/api/password",
+        "/api/reboot",
+        "/api/locate",
+        "/",
+        "/api/settings?x",
+    ]);
+    let body = prop_oneof![
+        Just(String::new()),
+        Just(r#"{"modbus": {"unit_id": 7}}"#.to_string()),
+        Just(r#"{"password": "12345678"}"#.to_string()),
+        Just(r#"{"network": {"mode": "static"}}"#.to_string()),
+        "[ -~]{0,40}",
+    ];
+    let headers = prop::collection::vec(
+        prop_oneof![
+            2 => Just("Authorization: Basic YWRtaW46MTIzNDU2Nzg=\r\n".to_string()),
+            1 => Just("Content-Length: 9999\r\n".to_string()),
+            1 => Just("Content-Length: 3\r\n".to_string()),
+            4 => "X-[a-z]{1,8}: [ -~]{0,20}\r\n",
+            1 => "[ -~]{0,20}\r\n",
+        ],
+        0..3,
+    );
+    (method, path, headers, body, any::<bool>()).prop_map(|(method, path, headers, body, length)| {
+        let length = if length { format!("Content-Length: {}\r\n", body.len()) } else { String::new() };
+        format!("{method} {path} HTTP/1.1\r\n{}{length}\r\n{body}", headers.concat()).into_bytes()
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 256, failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// Any stream, cut anywhere: the connection ends in bounded time, with
+    /// at most one response, and a refused change changes nothing.
+    #[test]
+    fn any_stream_ends_with_one_response_and_no_partial_change(
+        stream in prop_oneof![requests(), prop::collection::vec(any::<u8>(), 0..300)],
+        sizes in prop::collection::vec(0usize..20, 0..4),
+        close in any::<bool>(),
+    ) {
+        let clock = Clock::take();
+        let http = api();
+        let backend = http.backend();
+        let before = backend.settings();
+        let mut connection = Connection::open(http, Some(CLIENT));
+        connection.wire.read_sizes(sizes);
+        connection.wire.send(&stream);
+        if close {
+            connection.wire.close();
+        }
+        let bound = REQUEST_TIMEOUT + WRITE_TIMEOUT + AUTH_FAILURE_DELAY;
+        let took = connection.run(&clock, Duration::from_millis(250), bound);
+        prop_assert!(took.is_some(), "the connection ends within {} ms", bound.as_millis());
+        let replies = connection.wire.take_replies();
+        let response = Response::parse(&replies);
+        let changed = backend.settings() != before;
+        let accepted = response.as_ref().is_some_and(|r| r.status == 200);
+        prop_assert!(!changed || accepted, "a change without a 200");
+        if let Some(response) = &response {
+            if response.status != 200 || !changed {
+                prop_assert_eq!(backend.applied.get(), 0);
+            }
+            if response.header("content-type") == Some("application/json") {
+                response.json();
+            }
+        }
+    }
+}

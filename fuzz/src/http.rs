@@ -1,0 +1,291 @@
+//! The http target: arbitrary bytes as one HTTP connection to
+//! `adapter::http::serve`, over test-support's duplex, with a backend that
+//! keeps its settings and password in memory.
+//!
+//! Checks, on every input:
+//! - no panic, and the connection ends within the request and response
+//!   deadlines (the mock clock moves on while the server waits);
+//! - what the server wrote is nothing, or exactly one whole response
+//!   (its `Content-Length` bytes of body and nothing after), and a JSON
+//!   body is JSON;
+//! - the settings change only through a `PUT /api/settings` answered 200,
+//!   from an address `allow_write` admits, with the password when one is
+//!   set, and then to what the response shows; a refused one (any other
+//!   status) changes nothing and saves nothing;
+//! - the password, a reboot, a factory reset, a blink happen only through
+//!   their own endpoint, answered 200 or 202, under the same conditions.
+
+use core::pin::pin;
+use core::task::Poll;
+use std::cell::{Cell, RefCell};
+
+use adapter::device::Device;
+use adapter::http::{self, Action, Backend, Buffers, Http, NetworkStatus, Refusal};
+use adapter::server::{Server, Watchdog};
+use adapter::settings::{Field, Kind, NetMode, Settings};
+use embassy_time::{Duration, MockDriver};
+use test_support::duplex::{Wire, poll_once};
+
+use crate::check::Pins;
+use crate::input::{
+    HTTP_KEEP_OPEN, HTTP_OUTSIDE, HTTP_PARTIAL_WRITES, HTTP_PASSWORD_SET, HTTP_SAVE_FAILS, HTTP_STALL_READS, HttpInput,
+    PASSWORD,
+};
+
+/// The client inside `allow_write`, and one outside it.
+const INSIDE: [u8; 4] = [10, 0, 0, 2];
+const OUTSIDE: [u8; 4] = [10, 0, 1, 2];
+
+/// A backend over a real server and device, in memory.
+struct FuzzBackend<'a> {
+    server: &'a Server<'a, Device<'a>>,
+    settings: Cell<Settings>,
+    password: RefCell<Option<Vec<u8>>>,
+    save_fails: Cell<bool>,
+    applied: Cell<u32>,
+    located: Cell<bool>,
+}
+
+impl Backend for FuzzBackend<'_> {
+    fn server(&self) -> &Server<'_, Device<'_>> {
+        self.server
+    }
+
+    fn settings(&self) -> Settings {
+        self.settings.get()
+    }
+
+    async fn apply(&self, settings: &Settings) -> Result<bool, Refusal> {
+        if self.save_fails.get() {
+            return Err(Refusal::Storage);
+        }
+        let old = self.settings.replace(*settings);
+        self.server.set_config(settings.server_config());
+        self.applied.set(self.applied.get() + 1);
+        Ok(old.reboot_required(settings))
+    }
+
+    fn password_set(&self) -> bool {
+        self.password.borrow().is_some()
+    }
+
+    async fn verify_password(&self, password: &[u8]) -> bool {
+        self.password.borrow().as_deref() == Some(password)
+    }
+
+    async fn set_password(&self, password: &[u8]) -> Result<(), Refusal> {
+        if self.save_fails.get() {
+            return Err(Refusal::Storage);
+        }
+        *self.password.borrow_mut() = Some(password.to_vec());
+        Ok(())
+    }
+
+    fn reboot(&self) {}
+
+    async fn factory_reset(&self) {}
+
+    fn locate(&self, _duration: Duration) {
+        self.located.set(true);
+    }
+
+    fn model(&self) -> &'static str {
+        "fuzz"
+    }
+
+    fn mac(&self) -> [u8; 6] {
+        [0x02, 0, 0, 0, 0, 1]
+    }
+
+    fn network(&self) -> NetworkStatus {
+        NetworkStatus { mode: NetMode::Static, address: None, gateway: None, link: true }
+    }
+}
+
+/// The settings the target starts from: `allow_write` admits [`INSIDE`] only.
+fn initial_settings() -> Settings {
+    let mut settings = Settings::DEFAULT;
+    let set = settings.set(Field::ModbusAllowWrite, "10.0.0.0/24");
+    assert_eq!(set, Ok(()));
+    settings
+}
+
+/// base64 of `admin:` and [`PASSWORD`], unpadded (a prefix of the padded form).
+fn credentials() -> String {
+    let plain = format!("admin:{PASSWORD}");
+    let table = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut text = String::new();
+    for chunk in plain.as_bytes().chunks(3) {
+        let n = chunk.iter().enumerate().fold(0u32, |n, (i, &b)| n | u32::from(b) << (16 - 8 * i));
+        for i in 0..=chunk.len() {
+            text.push(char::from(table[(n >> (18 - 6 * i) & 63) as usize]));
+        }
+    }
+    text
+}
+
+/// A response as the client reads it.
+struct Response {
+    status: u16,
+    head: String,
+    body: Vec<u8>,
+}
+
+impl Response {
+    fn header(&self, name: &str) -> Option<&str> {
+        self.head.lines().skip(1).find_map(|line| {
+            let (n, v) = line.split_once(':')?;
+            n.trim().eq_ignore_ascii_case(name).then_some(v.trim())
+        })
+    }
+}
+
+/// Exactly one whole response, or a failed check.
+fn one_response(bytes: &[u8]) -> Response {
+    let end = bytes.windows(4).position(|w| w == b"\r\n\r\n").expect("a response head");
+    let head = String::from_utf8(bytes[..end].to_vec()).expect("a UTF-8 head");
+    let status = head.strip_prefix("HTTP/1.1 ").and_then(|s| s.get(..3)).and_then(|s| s.parse().ok());
+    let status = status.unwrap_or_else(|| panic!("a status line: {head:?}"));
+    let response = Response { status, head, body: bytes[end + 4..].to_vec() };
+    let length: usize = response.header("content-length").and_then(|v| v.parse().ok()).expect("a Content-Length");
+    assert_eq!(response.body.len(), length, "the body is Content-Length bytes, and nothing follows");
+    assert_eq!(response.header("connection"), Some("close"), "one request per connection");
+    if response.header("content-type") == Some("application/json") {
+        serde_json::from_slice::<serde_json::Value>(&response.body).expect("a JSON body");
+    }
+    response
+}
+
+/// The longest a connection may take: the request's deadline, the
+/// response's, and a failed password's delay.
+const BOUND: Duration = Duration::from_secs(
+    http::REQUEST_TIMEOUT.as_secs() + http::WRITE_TIMEOUT.as_secs() + http::AUTH_FAILURE_DELAY.as_secs(),
+);
+
+/// Serves `data` (see [`HttpInput`]) as one connection and checks it.
+pub fn http(data: &[u8]) {
+    let input = HttpInput::parse(data);
+    let flag = |bit: u8| input.flags & bit != 0;
+    MockDriver::get().reset();
+    let pins = Pins::default();
+    let device = Device::new(Watchdog::OFF, adapter::VERSION, &pins);
+    let settings = initial_settings();
+    let server = Server::new(settings.server_config(), &device);
+    let password = flag(HTTP_PASSWORD_SET).then(|| PASSWORD.as_bytes().to_vec());
+    let backend = FuzzBackend {
+        server: &server,
+        settings: Cell::new(settings),
+        password: RefCell::new(password.clone()),
+        save_fails: Cell::new(flag(HTTP_SAVE_FAILS)),
+        applied: Cell::new(0),
+        located: Cell::new(false),
+    };
+    let api = Http::new(&backend);
+
+    let (wire, end) = Wire::new();
+    wire.read_sizes(input.cuts.iter().map(|&cut| usize::from(cut)));
+    wire.stall_reads(flag(HTTP_STALL_READS));
+    if flag(HTTP_PARTIAL_WRITES) {
+        let sizes: Vec<usize> = match input.cuts {
+            [] => vec![1],
+            cuts => cuts.iter().map(|&cut| 1 + usize::from(cut % 16)).collect(),
+        };
+        wire.write_sizes(sizes);
+        wire.stall_writes(true);
+    }
+    wire.send(input.stream);
+    if !flag(HTTP_KEEP_OPEN) {
+        wire.close();
+    }
+    let peer = if flag(HTTP_OUTSIDE) { OUTSIDE } else { INSIDE };
+    let (reader, writer) = end.split();
+    let mut buffers = Box::new(Buffers::new());
+    let result = {
+        let mut serving = pin!(http::serve(&api, Some(peer), reader, writer, &mut buffers));
+        let step = Duration::from_millis(100);
+        let mut waited = Duration::from_ticks(0);
+        loop {
+            let stalls = wire.stalls();
+            match poll_once(serving.as_mut()) {
+                Poll::Ready(result) => break result,
+                // A stalled read or write: poll again, as an executor would.
+                Poll::Pending if wire.stalls() > stalls => {}
+                Poll::Pending => {
+                    assert!(waited < BOUND, "the connection ends within {} s", BOUND.as_secs());
+                    MockDriver::get().advance(step);
+                    waited += step;
+                }
+            }
+        }
+    };
+
+    let written = wire.take_replies();
+    let response = (!written.is_empty()).then(|| one_response(&written));
+    let status = response.as_ref().map(|r| r.status);
+    // The request line as picoserve splits it: UTF-8, words between
+    // whitespace (Unicode's), the path before any `?` or `#`.
+    let request_line = input.stream.split(|&b| b == b'\n').next().unwrap_or_default();
+    let mut words = std::str::from_utf8(request_line).unwrap_or_default().split_whitespace();
+    let method = words.next().unwrap_or_default();
+    let target = words.next().unwrap_or_default();
+    let path = target.split(['?', '#']).next().unwrap_or_default();
+    let asked = |m: &str, p: &str| method == m && path == p;
+    // picoserve removes NUL bytes from the header fields before it reads them.
+    let without_nul: Vec<u8> = input.stream.iter().copied().filter(|&b| b != 0).collect();
+    let may_change = !flag(HTTP_OUTSIDE) && (password.is_none() || contains(&without_nul, credentials().as_bytes()));
+
+    // Settings: only through an accepted PUT, and as the response shows them.
+    let now = backend.settings.get();
+    let changed = now != settings;
+    assert_eq!(backend.applied.get(), u32::from(changed), "saved exactly when changed");
+    if changed {
+        assert!(asked("PUT", "/api/settings") && status == Some(200), "a change without an accepted PUT");
+        assert!(may_change, "a change from outside allow_write or without the password");
+        let body = response.as_ref().map_or(&[][..], |r| r.body.as_slice());
+        let shown: serde_json::Value = serde_json::from_slice(body).expect("the new settings");
+        for &field in Field::ALL {
+            let mut text = String::new();
+            now.show(field, &mut text).unwrap();
+            let value = &shown[field.group()][field.name()];
+            let value = match field.kind() {
+                Kind::Number => value.as_u64().map(|n| n.to_string()),
+                Kind::Text => value.as_str().map(str::to_string),
+            };
+            assert_eq!(value, Some(text), "the response shows {} as in force", field.key());
+        }
+        assert!(shown["reboot_required"].is_boolean());
+    }
+    if asked("PUT", "/api/settings") && status != Some(200) {
+        assert!(!changed, "a refused change changed something");
+    }
+    // The password, the actions, the blink: each only through its endpoint.
+    if *backend.password.borrow() != password {
+        assert!(asked("PUT", "/api/password") && status == Some(200), "the password changed");
+        assert!(may_change, "the password changed from outside or without the current one");
+    }
+    match result {
+        Ok(Some(action)) => {
+            let path = match action {
+                Action::Reboot => "/api/reboot",
+                Action::FactoryReset => "/api/factory-reset",
+            };
+            assert!(asked("POST", path) && status == Some(202), "{action:?} without its request");
+            assert!(may_change);
+        }
+        Ok(None) | Err(_) => {}
+    }
+    if backend.located.get() {
+        assert!(asked("POST", "/api/locate") && status == Some(200));
+        assert!(may_change);
+    }
+    if let Some(response) = &response
+        && response.status == 401
+    {
+        assert!(password.is_some(), "401 without a password set");
+        assert_eq!(response.header("www-authenticate"), Some("Basic realm=\"mbio\""));
+    }
+}
+
+fn contains(haystack: &[u8], needle: &[u8]) -> bool {
+    haystack.windows(needle.len()).any(|window| window == needle)
+}
