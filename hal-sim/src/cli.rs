@@ -12,16 +12,21 @@ use sim_robot::Mode;
 
 /// The first lines of the usage text; the settings follow, from the table.
 const USAGE_HEAD: &str = "\
-usage: hal-sim --tap NAME [--control PATH] [--robot demo|idle] [SETTING VALUE]...
+usage: hal-sim --tap NAME [--control PATH] [--robot demo|idle] [--state FILE] [--http-port N]
+               [SETTING VALUE]...
 
   --tap NAME            the TAP interface to run on (made beforehand with
                         `ip tuntap add dev NAME mode tap user $USER`, or by hal-sim as root)
   --control PATH        a Unix socket for simulated inputs, outputs and robot events
   --robot MODE          demo (default): a robot running a looping program; idle: STANDBY, still
+  --state FILE          the settings flash, kept in FILE (64 KiB; made when missing); without it,
+                        settings saved through the HTTP API last until hal-sim exits
+  --http-port N         the HTTP API's port, 1-65535, or 0 for none (default 80)
   -h, --help            this text
   -V, --version         hal-sim's version and the firmware version it reports
 
-Settings (docs/settings.md; the same rules as the boards' build-time variables):";
+Settings (docs/settings.md; the same rules as the boards' build-time variables; these are the
+factory settings: those saved in --state FILE override them):";
 
 /// The usage text: hal-sim's options, then every setting with its rule and
 /// hal-sim's default.
@@ -57,7 +62,12 @@ pub struct Options {
     pub tap: String,
     pub control: Option<PathBuf>,
     pub robot: Mode,
-    /// The device's settings: the factory defaults with the flags applied.
+    /// The settings flash's file (`None`: in memory).
+    pub state: Option<PathBuf>,
+    /// The HTTP API's port (`None`: no HTTP).
+    pub http_port: Option<u16>,
+    /// The device's factory settings: the model's defaults with the flags
+    /// applied. What the state file holds overrides them.
     pub settings: Settings,
 }
 
@@ -90,6 +100,8 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
     let mut tap = None;
     let mut control = None;
     let mut robot = None;
+    let mut state = None;
+    let mut http_port = None;
     let mut settings = factory_defaults();
     let mut given: Vec<Field> = Vec::new();
 
@@ -108,6 +120,8 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
             "--tap" => Target::Own(&mut tap),
             "--control" => Target::Own(&mut control),
             "--robot" => Target::Own(&mut robot),
+            "--state" => Target::Own(&mut state),
+            "--http-port" => Target::Own(&mut http_port),
             _ => match flag.strip_prefix("--").and_then(|name| Field::ALL.iter().find(|f| f.flag() == name)) {
                 Some(&field) => Target::Setting(field),
                 None if flag.starts_with('-') => return error(format!("unknown option `{flag}`")),
@@ -140,7 +154,31 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
         let reasons: Vec<String> = errors.iter().map(|(field, rule)| format!("`--{}` {rule}", field.flag())).collect();
         return error(reasons.join("; "));
     }
-    let options = Options { tap, control: control.map(PathBuf::from), robot, settings };
+    let http_port = match http_port.as_deref().map(str::parse::<u16>) {
+        None => Some(adapter::http::HTTP_PORT),
+        Some(Ok(0)) => None,
+        Some(Ok(port)) => Some(port),
+        Some(Err(_)) => {
+            return error(format!(
+                "`--http-port` must be 1-65535, or 0 for none, not `{}`",
+                http_port.unwrap_or_default()
+            ));
+        }
+    };
+    if http_port == Some(settings.modbus.port) {
+        return error(format!(
+            "`--http-port` and `--port` are both {}: give them different ports",
+            settings.modbus.port
+        ));
+    }
+    let options = Options {
+        tap,
+        control: control.map(PathBuf::from),
+        robot,
+        state: state.map(PathBuf::from),
+        http_port,
+        settings,
+    };
     Ok(Action::Run(Box::new(options)))
 }
 
@@ -191,6 +229,23 @@ mod tests {
         assert_eq!(o.settings.server_config(), adapter::server::Config::DEFAULT);
         assert_eq!(o.control, None);
         assert_eq!(o.robot, Mode::Demo);
+        assert_eq!(o.state, None);
+        assert_eq!(o.http_port, Some(80));
+    }
+
+    #[test]
+    fn state_and_http_port() {
+        let o = run(&["--tap", "t", "--state", "/tmp/s.flash", "--http-port", "8080"]).unwrap();
+        assert_eq!(o.state, Some(PathBuf::from("/tmp/s.flash")));
+        assert_eq!(o.http_port, Some(8080));
+        assert_eq!(run(&["--tap", "t", "--http-port=0"]).unwrap().http_port, None);
+        assert_eq!(run(&["--tap", "t", "--port", "80", "--http-port", "0"]).unwrap().http_port, None);
+        fails(&["--tap", "t", "--http-port", "65536"], "`--http-port` must be 1-65535, or 0 for none");
+        fails(&["--tap", "t", "--http-port", "x"], "not `x`");
+        fails(&["--tap", "t", "--port", "80"], "`--http-port` and `--port` are both 80");
+        fails(&["--tap", "t", "--port", "1502", "--http-port", "1502"], "both 1502");
+        fails(&["--tap", "t", "--state", "a", "--state", "b"], "given twice");
+        assert!(usage().contains("--state FILE") && usage().contains("--http-port N"));
     }
 
     #[test]

@@ -12,11 +12,13 @@ use std::io::{Read as _, Write as _};
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::Path;
 
+use adapter::http::Backend as _;
 use adapter::io::{ANALOG_CHANNELS, RobotState, RobotStatus};
 use adapter::map::table::{DIGITAL_PINS, TOOL_PINS};
 use embassy_executor::Spawner;
 use sim_robot::Event;
 
+use crate::platform::SimController;
 use crate::runtime;
 use crate::sim::Board;
 
@@ -63,12 +65,17 @@ pub enum Command {
     GetStats,
     /// `robot ...`: an event of the simulated robot.
     Robot(Event),
+    /// `get locate`: `ok 1` while the status LED blinks (`POST /api/locate`), else `ok 0`.
+    GetLocate,
+    /// `factory-reset`: erases the saved settings and the password, then
+    /// reboots (hal-sim executes itself again), as the board's button does.
+    FactoryReset,
     /// `help`.
     Help,
 }
 
 const HELP: &str = "ok commands: set di N 0|1; set tool-di N 0|1; set ai N VALUE; \
-get di|tool-di|do|tool-do; get ai N; get ao N; get robot; get stats; \
+get di|tool-di|do|tool-do; get ai N; get ao N; get robot; get stats; get locate; factory-reset; \
 robot estop press|release; robot safety-stop [recovery]; robot reset; robot recover; \
 robot teach press|release; robot power press|release; robot state N|NAME; help";
 
@@ -108,12 +115,13 @@ pub fn parse(line: &str) -> Result<Command, String> {
         ["get", "ao", n] => Command::GetAnalogOutput { channel: channel(n)? },
         ["get", "robot"] => Command::GetRobot,
         ["get", "stats"] => Command::GetStats,
+        ["get", "locate"] => Command::GetLocate,
         ["get", ..] => {
-            return Err(
-                "usage: get di | get tool-di | get ai N | get do | get tool-do | get ao N | get robot | get stats"
-                    .into(),
-            );
+            return Err("usage: get di | get tool-di | get ai N | get do | get tool-do | get ao N | get robot | \
+                 get stats | get locate"
+                .into());
         }
+        ["factory-reset"] => Command::FactoryReset,
         ["robot", rest @ ..] => Command::Robot(robot_event(rest)?),
         ["help"] => Command::Help,
         [] => return Err("empty command".into()),
@@ -190,8 +198,10 @@ pub fn status_words(status: &RobotStatus) -> String {
     status.registers().map(|value| value.to_string()).join(" ")
 }
 
-/// Runs `command` on the board; the reply line, without its newline.
-pub fn execute(board: &Board, command: Command) -> String {
+/// Runs `command` on the board; the reply line, without its newline. A
+/// factory reset is only answered here: [`serve`] does it once the reply
+/// is out.
+pub fn execute(board: &Board, controller: &SimController, command: Command) -> String {
     match command {
         Command::SetDigitalInput { pin, on } => {
             board.set_digital_input(pin, on);
@@ -235,17 +245,22 @@ pub fn execute(board: &Board, command: Command) -> String {
                 format!("err {refused}")
             }
         },
+        Command::GetLocate => format!("ok {}", u8::from(controller.platform().locating())),
+        Command::FactoryReset => {
+            log::warn!("control: factory reset");
+            "ok erasing the settings, then rebooting".into()
+        }
         Command::Help => HELP.into(),
     }
 }
 
-/// One reply for one line of bytes.
-pub fn reply(board: &Board, line: &[u8]) -> String {
+/// One reply for one line of bytes, and the command it ran.
+pub fn reply(board: &Board, controller: &SimController, line: &[u8]) -> (String, Option<Command>) {
     let line = line.strip_suffix(b"\r").unwrap_or(line);
     let result = std::str::from_utf8(line).map_err(|_| "command is not UTF-8".to_owned()).and_then(parse);
     match result {
-        Ok(command) => execute(board, command),
-        Err(reason) => format!("err {reason}"),
+        Ok(command) => (execute(board, controller, command), Some(command)),
+        Err(reason) => (format!("err {reason}"), None),
     }
 }
 
@@ -287,7 +302,12 @@ async fn write_all(stream: &UnixStream, mut bytes: &[u8]) -> std::io::Result<()>
 
 /// Accepts control connections forever; each is served by its own task.
 #[embassy_executor::task]
-pub async fn accept_task(spawner: Spawner, listener: UnixListener, board: &'static Board) -> ! {
+pub async fn accept_task(
+    spawner: Spawner,
+    listener: UnixListener,
+    board: &'static Board,
+    controller: &'static SimController,
+) -> ! {
     static ACTIVE: ActiveClients = ActiveClients(std::sync::atomic::AtomicUsize::new(0));
     loop {
         let stream = match accept(&listener).await {
@@ -303,7 +323,7 @@ pub async fn accept_task(spawner: Spawner, listener: UnixListener, board: &'stat
             let _ = write_all(&stream, b"err busy: too many control connections\n").await;
             continue;
         }
-        match client_task(stream, board, &ACTIVE) {
+        match client_task(stream, board, controller, &ACTIVE) {
             Ok(token) => spawner.spawn(token),
             Err(e) => log::warn!("control: cannot serve a connection: {e:?}"),
         }
@@ -314,17 +334,23 @@ pub async fn accept_task(spawner: Spawner, listener: UnixListener, board: &'stat
 struct ActiveClients(std::sync::atomic::AtomicUsize);
 
 #[embassy_executor::task(pool_size = MAX_CONTROL_CLIENTS)]
-async fn client_task(stream: UnixStream, board: &'static Board, active: &'static ActiveClients) {
+async fn client_task(
+    stream: UnixStream,
+    board: &'static Board,
+    controller: &'static SimController,
+    active: &'static ActiveClients,
+) {
     use std::sync::atomic::Ordering::Relaxed;
     active.0.fetch_add(1, Relaxed);
-    if let Err(e) = serve(&stream, board).await {
+    if let Err(e) = serve(&stream, board, controller).await {
         log::debug!("control: connection ended: {e}");
     }
     active.0.fetch_sub(1, Relaxed);
 }
 
-/// Answers every line of one connection until it closes.
-async fn serve(stream: &UnixStream, board: &Board) -> std::io::Result<()> {
+/// Answers every line of one connection until it closes (or a factory
+/// reset, after its reply, ends hal-sim's run).
+async fn serve(stream: &UnixStream, board: &Board, controller: &SimController) -> std::io::Result<()> {
     let mut buffer = [0u8; MAX_LINE_LEN];
     let mut filled = 0;
     let mut discarding = false;
@@ -337,14 +363,26 @@ async fn serve(stream: &UnixStream, board: &Board) -> std::io::Result<()> {
         filled += n;
         let mut start = 0;
         let mut out = String::new();
+        let mut reset = false;
         while let Some(end) = buffer.get(start..filled).and_then(|rest| rest.iter().position(|&b| b == b'\n')) {
             let line = buffer.get(start..start + end).unwrap_or_default();
             if std::mem::take(&mut discarding) {
                 let _ = writeln!(out, "err line longer than {MAX_LINE_LEN} bytes");
             } else {
-                let _ = writeln!(out, "{}", reply(board, line));
+                let (text, command) = reply(board, controller, line);
+                let _ = writeln!(out, "{text}");
+                if command == Some(Command::FactoryReset) {
+                    // Nothing after it runs: the reboot ends this run.
+                    reset = true;
+                    break;
+                }
             }
             start += end + 1;
+        }
+        if reset {
+            write_all(stream, out.as_bytes()).await?;
+            controller.factory_reset().await;
+            return Ok(());
         }
         buffer.copy_within(start..filled, 0);
         filled -= start;
@@ -389,6 +427,14 @@ mod tests {
         assert_eq!(parse("robot state NOT-READY"), Ok(Command::Robot(Event::SetState(RobotState::NotReady))));
         assert_eq!(parse("get robot"), Ok(Command::GetRobot));
         assert_eq!(parse("get stats"), Ok(Command::GetStats));
+    }
+
+    #[test]
+    fn locate_and_factory_reset() {
+        assert_eq!(parse("get locate"), Ok(Command::GetLocate));
+        assert_eq!(parse("factory-reset"), Ok(Command::FactoryReset));
+        assert!(parse("factory-reset now").unwrap_err().contains("unknown command"));
+        assert!(HELP.contains("get locate") && HELP.contains("factory-reset"));
     }
 
     #[test]

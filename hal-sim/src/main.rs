@@ -4,28 +4,41 @@
 
 mod cli;
 mod control;
+mod platform;
 mod runtime;
 mod sim;
+mod state;
 mod tap;
 
+use std::ffi::OsString;
 use std::hash::{BuildHasher, Hasher, RandomState};
 use std::io::Write as _;
 use std::os::unix::net::UnixListener;
 use std::process::ExitCode;
 
 use adapter::device::{self, Device};
+use adapter::http::{self, Http, MAX_HTTP_CONNECTIONS};
 use adapter::server::{self, SOCKET_POOL, Server, SlotId};
+use adapter::settings::Settings;
+use adapter::storage::Store;
 use embassy_executor::Spawner;
 use embassy_net::{Runner, Stack, StackResources};
 use sim_robot::SimRobot;
 
 use crate::cli::{Action, Options};
+use crate::platform::{SimController, SimPlatform};
 use crate::runtime::Executor;
 use crate::sim::{Board, OutputLatch};
+use crate::state::Flash;
 use crate::tap::TunTapDevice;
 
 /// The Modbus server over the simulated device.
 type ModbusServer = Server<'static, Device<'static>>;
+/// The HTTP API over hal-sim's backend.
+type Api = Http<'static, SimController>;
+
+/// Sockets in the stack: the Modbus listeners, DHCP's, and the HTTP listeners.
+const NET_SOCKETS: usize = SOCKET_POOL + 1 + MAX_HTTP_CONNECTIONS;
 
 /// Exit status for a command line hal-sim cannot run with.
 const EXIT_USAGE: u8 = 2;
@@ -36,6 +49,8 @@ pub(crate) const MAC: [u8; 6] = [0x02, 0x4d, 0x42, 0x53, 0x49, 0x4d];
 
 fn main() -> ExitCode {
     init_logging();
+    // Kept as given, for a reboot (which executes hal-sim again with them).
+    let args: Vec<OsString> = std::env::args_os().collect();
     let options = match cli::parse(std::env::args().skip(1)) {
         Ok(Action::Run(options)) => *options,
         Ok(Action::Help) => {
@@ -50,6 +65,19 @@ fn main() -> ExitCode {
         Err(e) => {
             eprintln!("hal-sim: error: {e}\n\n{}", cli::usage());
             return ExitCode::from(EXIT_USAGE);
+        }
+    };
+
+    let flash = match options.state.as_deref().map(state::open).transpose() {
+        Ok(Some(flash)) => flash,
+        Ok(None) => state::in_memory(),
+        Err(e) if e.is_usage() => {
+            eprintln!("hal-sim: error: {e}");
+            return ExitCode::from(EXIT_USAGE);
+        }
+        Err(e) => {
+            eprintln!("hal-sim: {e}");
+            return ExitCode::from(EXIT_UNAVAILABLE);
         }
     };
 
@@ -71,23 +99,45 @@ fn main() -> ExitCode {
         }
     };
 
-    run(options, device, control)
+    run(options, device, control, flash, args)
 }
 
-/// Builds the stack and the board, and runs the runtime's loop forever.
-fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>) -> ! {
-    let net_config = adapter::net::initial_config(&options.settings.network);
-    // The Modbus listeners, and DHCP's socket when the mode is dhcp.
-    let resources = Box::leak(Box::new(StackResources::<{ SOCKET_POOL + 1 }>::new()));
+/// Loads the saved settings, builds the stack, the board and the API over
+/// them, and runs the runtime's loop forever.
+fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>, flash: Flash, args: Vec<OsString>) -> ! {
+    let mut store = match Store::new(flash, state::RANGE) {
+        Ok(store) => store,
+        Err(e) => {
+            eprintln!("hal-sim: cannot use its settings flash: {e}");
+            std::process::exit(i32::from(EXIT_UNAVAILABLE));
+        }
+    };
+    // The command line's settings are the factory settings; saved ones override them.
+    let loaded = embassy_futures::block_on(store.load(&options.settings));
+    match &options.state {
+        Some(path) => log::info!("settings: kept in {} ({:?})", path.display(), loaded.status),
+        None => log::info!("settings: kept in memory (no --state): changes last until hal-sim exits"),
+    }
+    if let Some(error) = loaded.error {
+        log::warn!("settings storage: {error}");
+    }
+    let settings: &'static Settings = Box::leak(Box::new(running_settings(&loaded.settings, &options)));
+
+    let net_config = adapter::net::initial_config(&settings.network);
+    let resources = Box::leak(Box::new(StackResources::<NET_SOCKETS>::new()));
     let (stack, runner) = embassy_net::new(device, net_config, resources, RandomState::new().build_hasher().finish());
 
     let outputs: &'static OutputLatch = Box::leak(Box::new(OutputLatch::new()));
     let device: &'static Device<'static> =
-        Box::leak(Box::new(Device::new(options.settings.watchdog(), adapter::VERSION, outputs)));
+        Box::leak(Box::new(Device::new(settings.watchdog(), adapter::VERSION, outputs)));
     device.drive_outputs();
-    let server: &'static ModbusServer = Box::leak(Box::new(Server::new(options.settings.server_config(), device)));
+    let server: &'static ModbusServer = Box::leak(Box::new(Server::new(settings.server_config(), device)));
     let board: &'static Board = Box::leak(Box::new(Board::new(device, outputs, SimRobot::new(options.robot))));
+    let platform = SimPlatform::new(stack, settings.network.mode);
+    let controller: &'static SimController = Box::leak(Box::new(SimController::new(server, platform, store, &loaded)));
+    let api: &'static Api = Box::leak(Box::new(Http::new(controller)));
     let options: &'static Options = Box::leak(Box::new(options));
+    let sim = Sim { stack, board, server, controller, api, settings, options };
 
     let executor: &'static mut Executor = match Executor::new() {
         Ok(executor) => Box::leak(Box::new(executor)),
@@ -97,31 +147,65 @@ fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>) ->
         }
     };
     executor.run(|spawner| {
-        if let Err(e) = start(spawner, stack, runner, board, server, options, control) {
+        if let Err(e) = start(spawner, sim, runner, control, args) {
             eprintln!("hal-sim: cannot start its tasks: {e:?}");
             std::process::exit(i32::from(EXIT_UNAVAILABLE));
         }
     })
 }
 
-fn start(
-    spawner: Spawner,
+/// The settings hal-sim runs with: the loaded ones, except a saved Modbus
+/// port that is the HTTP port (the API does not know hal-sim's HTTP port):
+/// then the command line's, so that the API stays reachable to mend it.
+fn running_settings(loaded: &Settings, options: &Options) -> Settings {
+    let mut settings = *loaded;
+    if options.http_port == Some(settings.modbus.port) {
+        log::warn!(
+            "settings: the saved Modbus port {} is the HTTP port; Modbus listens on {} instead",
+            settings.modbus.port,
+            options.settings.modbus.port
+        );
+        settings.modbus.port = options.settings.modbus.port;
+    }
+    settings
+}
+
+/// What the tasks share, all of it for the life of the process.
+#[derive(Clone, Copy)]
+struct Sim {
     stack: Stack<'static>,
-    runner: Runner<'static, TunTapDevice>,
     board: &'static Board,
     server: &'static ModbusServer,
+    controller: &'static SimController,
+    api: &'static Api,
+    /// The settings in force at start (the loaded ones).
+    settings: &'static Settings,
     options: &'static Options,
+}
+
+fn start(
+    spawner: Spawner,
+    sim: Sim,
+    runner: Runner<'static, TunTapDevice>,
     control: Option<UnixListener>,
+    args: Vec<OsString>,
 ) -> Result<(), embassy_executor::SpawnError> {
+    let Sim { stack, board, server, controller, api, settings, options } = sim;
     spawner.spawn(net_task(runner)?);
-    spawner.spawn(link_task(stack, server, options)?);
+    spawner.spawn(link_task(stack, server, settings)?);
     spawner.spawn(refresh_task(board)?);
     for slot in 0..SOCKET_POOL {
         spawner.spawn(modbus_task(stack, server, slot)?);
     }
-    if let Some(listener) = control {
-        spawner.spawn(control::accept_task(spawner, listener, board)?);
+    if let Some(port) = options.http_port {
+        for _ in 0..MAX_HTTP_CONNECTIONS {
+            spawner.spawn(http_task(stack, api, port)?);
+        }
     }
+    if let Some(listener) = control {
+        spawner.spawn(control::accept_task(spawner, listener, board, controller)?);
+    }
+    spawner.spawn(platform::reboot_task(args)?);
     spawner.spawn(ready_task(stack, server, options)?);
     Ok(())
 }
@@ -137,10 +221,16 @@ async fn modbus_task(stack: Stack<'static>, server: &'static ModbusServer, slot:
     server::listen(stack, server, slot).await
 }
 
+/// One HTTP listener per connection served at once.
+#[embassy_executor::task(pool_size = MAX_HTTP_CONNECTIONS)]
+async fn http_task(stack: Stack<'static>, api: &'static Api, port: u16) -> ! {
+    http::listen(stack, api, port).await
+}
+
 /// Follows the TAP's link with the boards' network policy.
 #[embassy_executor::task]
-async fn link_task(stack: Stack<'static>, server: &'static ModbusServer, options: &'static Options) -> ! {
-    adapter::net::run(stack, &options.settings.network, server).await
+async fn link_task(stack: Stack<'static>, server: &'static ModbusServer, settings: &'static Settings) -> ! {
+    adapter::net::run(stack, &settings.network, server).await
 }
 
 #[embassy_executor::task]
@@ -164,6 +254,10 @@ async fn ready_task(stack: Stack<'static>, server: &'static ModbusServer, option
     );
     if let Some(path) = &options.control {
         log::info!("control socket at {}", path.display());
+    }
+    match options.http_port {
+        Some(port) => log::info!("http api on port {port}"),
+        None => log::info!("http api off (--http-port 0)"),
     }
     let address = stack.config_v4().map(|v4| v4.address.address());
     let address = address.map_or_else(|| "?".to_owned(), |address| address.to_string());
