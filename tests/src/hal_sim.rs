@@ -9,13 +9,17 @@
 //!     // ... tokio-modbus requests ...
 //! });
 //! ```
+//!
+//! The HTTP API is reached with curl run inside the namespace
+//! ([`HalSim::http`]), as a user would; settings kept across runs need a
+//! state file ([`HalSim::start_with`], [`HalSim::restart`]).
 
 use std::io::{BufRead, BufReader, Write};
 use std::net::{Ipv4Addr, SocketAddr};
 use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Stdio};
-use std::sync::mpsc;
+use std::sync::{Mutex, mpsc};
 use std::time::{Duration, Instant};
 
 use test_support::framer;
@@ -54,58 +58,123 @@ pub fn binary() -> PathBuf {
 #[derive(Debug)]
 pub struct HalSim {
     child: Child,
+    /// hal-sim's stdout, line by line (in a mutex: a `HalSim` is shared
+    /// with the client's thread).
+    lines: Mutex<mpsc::Receiver<String>>,
     control: PathBuf,
     log: PathBuf,
+    /// The arguments after the TAP, the address and the control socket.
+    args: Vec<String>,
+    http_port: u16,
     ns: Namespace,
 }
 
 impl HalSim {
     /// Starts hal-sim on a new namespace's TAP at 198.18.0.2 with a control
-    /// socket, plus `args`, and waits for its "listening" line.
+    /// socket, plus `args`, and waits for its "listening" line. Its settings
+    /// store is in memory, its HTTP API on port 80 (unless `args` say
+    /// otherwise: `--state FILE`, `--http-port N`).
     pub fn start(args: &[&str]) -> Self {
+        Self::start_with(None, HTTP_PORT, args)
+    }
+
+    /// Starts hal-sim as [`HalSim::start`] does, with its settings store in
+    /// `state` (a file kept across runs; `None`: in memory) and its HTTP API
+    /// on `http_port` (0: none).
+    pub fn start_with(state: Option<&Path>, http_port: u16, args: &[&str]) -> Self {
         let ns = Namespace::new().expect("a network namespace with a TAP");
         let dir = std::env::temp_dir();
         let control = dir.join(format!("{}.control.sock", ns.name()));
         let log = dir.join(format!("{}.hal-sim.log", ns.name()));
-        let stderr = std::fs::File::create(&log).expect("a log file in the temp dir");
-        let mut child = ns
-            .command(binary())
-            .args(["--tap", TAP, "--ip", &format!("{DEVICE_IP}/24"), "--control"])
-            .arg(&control)
-            .args(args)
-            .env("RUST_LOG", std::env::var("RUST_LOG").unwrap_or_else(|_| "debug".into()))
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(stderr)
-            .spawn()
-            .expect("hal-sim starts");
-        let stdout = child.stdout.take().expect("hal-sim's stdout");
-        let (tx, rx) = mpsc::channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                if tx.send(line).is_err() {
-                    break;
-                }
-            }
-        });
-        let mut sim = Self { child, control, log, ns };
+        let mut own = Vec::new();
+        if let Some(state) = state {
+            own.extend(["--state".to_owned(), state.to_str().expect("a UTF-8 state path").to_owned()]);
+        }
+        own.extend(["--http-port".to_owned(), http_port.to_string()]);
+        let args: Vec<String> = own.into_iter().chain(args.iter().map(|a| a.to_string())).collect();
+        let (child, lines) = spawn(&ns, &control, &log, &args, false);
+        let mut sim = Self { child, lines: Mutex::new(lines), control, log, args, http_port, ns };
+        sim.wait_ready();
+        sim
+    }
+
+    /// Kills hal-sim at once (SIGKILL: a power cut) and waits for it to be gone.
+    pub fn kill(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+
+    /// Kills hal-sim (if it runs) and starts it again in the same namespace
+    /// with the same arguments (the same state file), as a power cycle does;
+    /// waits for its "listening" line.
+    pub fn restart(&mut self) {
+        self.kill();
+        let (child, lines) = spawn(&self.ns, &self.control, &self.log, &self.args, true);
+        self.child = child;
+        self.lines = Mutex::new(lines);
+        self.wait_ready();
+    }
+
+    /// Waits for hal-sim's next "listening" line: after a start, or after a
+    /// reboot (when hal-sim executes itself again, the same process).
+    pub fn wait_ready(&mut self) {
         let deadline = Instant::now() + START_TIMEOUT;
         loop {
             let left = deadline.saturating_duration_since(Instant::now());
-            match rx.recv_timeout(left) {
+            let lines = self.lines.get_mut().unwrap_or_else(std::sync::PoisonError::into_inner);
+            match lines.recv_timeout(left) {
                 Ok(line) if line.starts_with("hal-sim: modbus tcp listening on ") => {
                     let expected = format!("hal-sim: modbus tcp listening on {DEVICE_IP}:");
                     assert!(line.starts_with(&expected) && line.ends_with(&format!("(tap {TAP})")), "{line}");
-                    break;
+                    return;
                 }
                 Ok(_) => {}
                 Err(_) => {
-                    let status = sim.child.try_wait().ok().flatten();
-                    panic!("hal-sim did not say it was listening (exit: {status:?}); its log:\n{}", sim.log());
+                    let status = self.child.try_wait().ok().flatten();
+                    panic!("hal-sim did not say it was listening (exit: {status:?}); its log:\n{}", self.log());
                 }
             }
         }
-        sim
+    }
+
+    /// hal-sim's process id (the same across a reboot, which is an exec).
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// A curl command inside the namespace, to hal-sim's HTTP API at `path`,
+    /// quiet, with a 5 s limit; it prints the body, a newline and the status
+    /// code (read it with [`Reply::parse`]). Add the method, the body, the
+    /// credentials and the source address as curl's arguments.
+    pub fn curl(&self, path: &str) -> std::process::Command {
+        let mut command = self.ns.command("curl");
+        command
+            .args(["-sS", "-m", "5", "-w", "\n%{http_code}"])
+            .arg(format!("http://{DEVICE_IP}:{}{path}", self.http_port))
+            .stdin(Stdio::null());
+        command
+    }
+
+    /// Runs curl (see [`HalSim::curl`]) with `args` and returns the reply.
+    pub fn http(&self, path: &str, args: &[&str]) -> Reply {
+        let output = self.curl(path).args(args).output().expect("curl runs");
+        Reply::parse(&output.stdout)
+            .unwrap_or_else(|| panic!("curl {path} {args:?} failed: {}", String::from_utf8_lossy(&output.stderr)))
+    }
+
+    /// `GET path`.
+    pub fn get(&self, path: &str) -> Reply {
+        self.http(path, &[])
+    }
+
+    /// `PUT path` with the JSON `body`, and `admin:PASSWORD` credentials when given.
+    pub fn put(&self, path: &str, body: &str, password: Option<&str>) -> Reply {
+        let credentials = password.map(|p| format!("admin:{p}"));
+        let mut args = vec!["-X", "PUT", "-H", "Content-Type: application/json", "--data-binary", body];
+        if let Some(credentials) = &credentials {
+            args.extend(["-u", credentials]);
+        }
+        self.http(path, &args)
     }
 
     /// The namespace hal-sim runs in.
@@ -189,6 +258,66 @@ impl HalSim {
     /// Whether hal-sim is still running.
     pub fn is_running(&mut self) -> bool {
         matches!(self.child.try_wait(), Ok(None))
+    }
+}
+
+/// Starts hal-sim in `ns` with `args` after the TAP, the address and the
+/// control socket; its log goes to `log` (appended to when `append`), its
+/// stdout to the receiver, line by line.
+fn spawn(ns: &Namespace, control: &Path, log: &Path, args: &[String], append: bool) -> (Child, mpsc::Receiver<String>) {
+    let stderr = std::fs::OpenOptions::new()
+        .create(true)
+        .append(append)
+        .write(true)
+        .truncate(!append)
+        .open(log)
+        .expect("a log file in the temp dir");
+    let mut child = ns
+        .command(binary())
+        .args(["--tap", TAP, "--ip", &format!("{DEVICE_IP}/24"), "--control"])
+        .arg(control)
+        .args(args)
+        .env("RUST_LOG", std::env::var("RUST_LOG").unwrap_or_else(|_| "debug".into()))
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(stderr)
+        .spawn()
+        .expect("hal-sim starts");
+    let stdout = child.stdout.take().expect("hal-sim's stdout");
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    (child, rx)
+}
+
+/// hal-sim's HTTP port unless told otherwise.
+pub const HTTP_PORT: u16 = 80;
+
+/// An HTTP response as curl printed it: the status code and the body.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Reply {
+    pub status: u16,
+    pub body: String,
+}
+
+impl Reply {
+    /// Reads curl's output (`-w '\n%{http_code}'`): `None` when curl got no
+    /// response (it prints status 000).
+    pub fn parse(output: &[u8]) -> Option<Self> {
+        let text = String::from_utf8_lossy(output);
+        let (body, code) = text.rsplit_once('\n')?;
+        let status = code.trim().parse().ok().filter(|&status| status != 0)?;
+        Some(Self { status, body: body.to_owned() })
+    }
+
+    /// The body as JSON (every response of the API is).
+    pub fn json(&self) -> serde_json::Value {
+        serde_json::from_str(&self.body).unwrap_or_else(|e| panic!("not JSON ({e}): {:?}", self.body))
     }
 }
 
