@@ -121,6 +121,8 @@ fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>, fl
     if let Some(error) = loaded.error {
         log::warn!("settings storage: {error}");
     }
+    // Saves from now on run in the executor and take the flash's time.
+    store.flash().start_timing();
     let settings: &'static Settings = Box::leak(Box::new(running_settings(&loaded.settings, &options)));
 
     let net_config = adapter::net::initial_config(&settings.network);

@@ -21,7 +21,9 @@ use std::io::{self, Write as _};
 use std::os::fd::AsRawFd;
 use std::path::{Path, PathBuf};
 
-use adapter::storage::flash::RuleFlash;
+use adapter::storage::flash::{FlashError, RuleFlash};
+use embassy_time::{Duration, Timer};
+use embedded_storage_async::nor_flash as nor_async;
 
 /// The flash's write unit, in bytes (the STM32F4's word).
 pub const WRITE_LEN: usize = 4;
@@ -32,8 +34,78 @@ pub const PAGES: usize = 16;
 /// The state file's size: 64 KiB, all of it the settings store's range.
 pub const STATE_LEN: usize = PAGES * PAGE_LEN;
 
-/// The settings flash hal-sim gives the store.
-pub type Flash = RuleFlash<'static, WRITE_LEN, PAGE_LEN>;
+/// The flash rules over the state file, without the flash's timing.
+pub type RawFlash = RuleFlash<'static, WRITE_LEN, PAGE_LEN>;
+
+/// How long programming one word takes (the STM32F4 takes about 16 µs).
+pub const WORD_PROGRAM_TIME: Duration = Duration::from_micros(16);
+/// How long erasing one page takes (a 16 KiB STM32F4 sector takes about
+/// 250 ms; a 4 KiB page is taken as a quarter).
+pub const PAGE_ERASE_TIME: Duration = Duration::from_millis(60);
+
+/// The settings flash hal-sim gives the store: the flash rules, and the
+/// flash's time. Each write and erase first waits as long as the real one
+/// takes (letting the executor run meanwhile), then lands in the file, so a
+/// process killed during a save is cut between two flash operations, as a
+/// board losing power mid-save would be (tearing inside one operation is the
+/// storage unit tests' part).
+#[derive(Debug)]
+pub struct Flash {
+    raw: RawFlash,
+    timed: bool,
+}
+
+impl Flash {
+    /// The flash over the rules, untimed until [`Flash::start_timing`].
+    pub fn new(raw: RawFlash) -> Self {
+        Self { raw, timed: false }
+    }
+
+    /// From now on writes and erases take their time (waits on embassy-time:
+    /// only inside the executor, so not for the load at start-up).
+    pub fn start_timing(&mut self) {
+        self.timed = true;
+    }
+
+    async fn take(&self, time: Duration) {
+        if self.timed {
+            Timer::after(time).await;
+        }
+    }
+}
+
+impl nor_async::ErrorType for Flash {
+    type Error = FlashError;
+}
+
+impl nor_async::ReadNorFlash for Flash {
+    const READ_SIZE: usize = 1;
+
+    async fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), FlashError> {
+        nor_async::ReadNorFlash::read(&mut self.raw, offset, bytes).await
+    }
+
+    fn capacity(&self) -> usize {
+        self.raw.capacity()
+    }
+}
+
+impl nor_async::NorFlash for Flash {
+    const WRITE_SIZE: usize = WRITE_LEN;
+    const ERASE_SIZE: usize = PAGE_LEN;
+
+    async fn erase(&mut self, from: u32, to: u32) -> Result<(), FlashError> {
+        let pages = to.saturating_sub(from) / PAGE_LEN as u32;
+        self.take(PAGE_ERASE_TIME * pages).await;
+        nor_async::NorFlash::erase(&mut self.raw, from, to).await
+    }
+
+    async fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), FlashError> {
+        let words = u32::try_from(bytes.len() / WRITE_LEN).unwrap_or(u32::MAX);
+        self.take(WORD_PROGRAM_TIME * words).await;
+        nor_async::NorFlash::write(&mut self.raw, offset, bytes).await
+    }
+}
 
 /// The store's range in the flash: all of it.
 pub const RANGE: core::ops::Range<u32> = 0..STATE_LEN as u32;
@@ -100,12 +172,12 @@ pub fn open(path: &Path) -> Result<Flash, StateError> {
     let memory = map(&file).map_err(io)?;
     // The lock lasts as long as the descriptor: keep it open for good.
     std::mem::forget(file);
-    Ok(Flash::new(memory))
+    Ok(Flash::new(RawFlash::new(memory)))
 }
 
 /// The flash over memory, erased: the settings last until hal-sim exits.
 pub fn in_memory() -> Flash {
-    Flash::new(Box::leak(vec![0xff; STATE_LEN].into_boxed_slice()))
+    Flash::new(RawFlash::new(Box::leak(vec![0xff; STATE_LEN].into_boxed_slice())))
 }
 
 /// Makes `path` whole and erased: a temporary file beside it, renamed in.
@@ -163,9 +235,9 @@ mod tests {
     fn a_missing_file_is_made_erased_and_writes_land_in_it_at_once() {
         let path = temporary("fresh");
         let mut flash = open(&path).unwrap();
-        assert_eq!(flash.capacity(), STATE_LEN);
+        assert_eq!(nor_async::ReadNorFlash::capacity(&flash), STATE_LEN);
         assert!(std::fs::read(&path).unwrap().iter().all(|&b| b == 0xff));
-        embedded_storage::nor_flash::NorFlash::write(&mut flash, 8, &[1, 2, 3, 4]).unwrap();
+        embassy_futures::block_on(nor_async::NorFlash::write(&mut flash, 8, &[1, 2, 3, 4])).unwrap();
         // No flush, no drop: the bytes are in the file already.
         assert_eq!(std::fs::read(&path).unwrap().get(8..12), Some(&[1, 2, 3, 4][..]));
         let _ = std::fs::remove_file(&path);
