@@ -34,7 +34,7 @@ use test_support::reply::Answer;
 use check::Pins;
 pub use http::http;
 pub use input::{HandlerInput, HttpInput, SessionInput};
-pub use storage::{StoreInput, store};
+pub use storage::{StoreInput, record, store};
 
 /// The server's configuration as the tests set it: no idle timeout (the mock
 /// clock never moves, but a session must not depend on that), the policy under test.

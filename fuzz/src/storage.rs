@@ -105,6 +105,13 @@ pub fn saved() -> Settings {
     s
 }
 
+/// Checks the record decoder alone against its model: the `record` target,
+/// fast enough for tens of millions of runs (the `store` target does this
+/// and a whole store's load and save per input).
+pub fn record(data: &[u8]) {
+    check_record(data, &factory());
+}
+
 /// Checks the record decoder, and the store over the image (see the module).
 pub fn store(data: &[u8]) {
     let input = StoreInput::parse(data);
@@ -218,7 +225,9 @@ fn model(bytes: &[u8], factory: &Settings) -> Option<Decoded> {
 }
 
 /// The seeds of the store target: records and images of real saves.
-pub fn seeds() -> Vec<Vec<u8>> {
+/// The `record` target's seeds: records of the factory and saved settings,
+/// a newer firmware's key, a misfit, another version.
+pub fn record_seeds() -> Vec<Vec<u8>> {
     let mut records = Vec::new();
     let mut out = [0u8; record::MAX_RECORD_LEN];
     for settings in [Settings::DEFAULT, factory(), saved()] {
@@ -228,6 +237,12 @@ pub fn seeds() -> Vec<Vec<u8>> {
     records.push(b"\x01modbus.unit_id=9\nhttp.port=8080\n".to_vec());
     records.push(b"\x01network.mode=static\n".to_vec());
     records.push(b"\x02modbus.unit_id=9\n".to_vec());
+    records
+}
+
+/// The `store` target's seeds: the records as [`StoreInput`]s, and images.
+pub fn seeds() -> Vec<Vec<u8>> {
+    let records = record_seeds();
     let mut seeds: Vec<Vec<u8>> = records.iter().map(|r| StoreInput { layout: 0, bytes: r }.to_bytes()).collect();
 
     // Images: the first page after one save, a save and a password, many saves.

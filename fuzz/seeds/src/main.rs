@@ -3,7 +3,7 @@
 //! the store's from records and real saves (`firmware_fuzz::storage::seeds`):
 //!
 //! ```text
-//! cargo run -p fuzz-seeds -- DIR    # writes DIR/session, DIR/handler, DIR/codec, DIR/store, DIR/http
+//! cargo run -p fuzz-seeds -- DIR    # writes DIR/session, DIR/handler, DIR/codec, DIR/store, DIR/record, DIR/http
 //! ```
 //!
 //! The http target's seeds are requests to every endpoint of the API
@@ -31,15 +31,17 @@ fn main() {
         write(&dir.join("handler"), &handler_seeds(), firmware_fuzz::handler),
         write(&dir.join("codec"), &codec_seeds(), firmware_fuzz::codec),
         write(&dir.join("store"), &firmware_fuzz::storage::seeds(), firmware_fuzz::store),
+        write(&dir.join("record"), &firmware_fuzz::storage::record_seeds(), firmware_fuzz::record),
         write(&dir.join("http"), &http_seeds(), firmware_fuzz::http),
     ];
     println!(
-        "fuzz-seeds: {} session, {} handler, {} codec, {} store, {} http seeds in {}",
+        "fuzz-seeds: {} session, {} handler, {} codec, {} store, {} record, {} http seeds in {}",
         written[0],
         written[1],
         written[2],
         written[3],
         written[4],
+        written[5],
         dir.display()
     );
 }
