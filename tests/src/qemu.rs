@@ -11,8 +11,9 @@
 //! qemu.finish(); // fails on a panic, a fault or an error in the firmware's log
 //! ```
 //!
-//! - [`Qemu::slirp`]: user networking, a free port of 127.0.0.1 forwarded to
-//!   the firmware's port 502 (slirp's DHCP gives the firmware 10.0.2.15).
+//! - [`Qemu::slirp`]: user networking, free ports of 127.0.0.1 forwarded to
+//!   the firmware's port 502 and its HTTP port 80 ([`Qemu::http_addr`];
+//!   slirp's DHCP gives the firmware 10.0.2.15).
 //! - [`Qemu::tap`]: on the TAP of a new [`Namespace`] (no DHCP there: the
 //!   firmware falls back to 198.18.0.2/24 after 5 s).
 //! - [`Qemu::slirp_with_state`]: slirp on a state file the test keeps, so a
@@ -55,6 +56,8 @@ pub const READY_TIMEOUT: Duration = Duration::from_secs(30);
 pub const LED0: u32 = 0x4002_8000;
 /// The firmware's Modbus port.
 pub const MODBUS_PORT: u16 = 502;
+/// The firmware's HTTP port (the JSON API).
+pub const HTTP_PORT: u16 = 80;
 /// Registers 256-258: the firmware version.
 pub const VERSION_REGISTER: u16 = 256;
 /// The settings region (`SETTINGS` in firmware/mps2-an386/memory.x): the
@@ -190,7 +193,7 @@ pub fn erased_state(path: &Path) -> std::io::Result<()> {
 
 /// How QEMU reaches the firmware's network.
 enum Network<'a> {
-    Slirp { port: u16 },
+    Slirp { port: u16, http_port: u16 },
     Tap(&'a Namespace),
 }
 
@@ -203,6 +206,7 @@ pub struct Qemu {
     elf: PathBuf,
     state: PathBuf,
     addr: SocketAddr,
+    http_addr: SocketAddr,
     ns: Option<Namespace>,
 }
 
@@ -224,7 +228,12 @@ impl Qemu {
         let mut last_error = String::new();
         for _ in 0..5 {
             let port = free_port();
-            match Self::boot(Network::Slirp { port }, SocketAddr::from((Ipv4Addr::LOCALHOST, port)), state) {
+            let http_port = free_port();
+            if http_port == port {
+                continue;
+            }
+            let addr = SocketAddr::from((Ipv4Addr::LOCALHOST, port));
+            match Self::boot(Network::Slirp { port, http_port }, addr, state) {
                 Ok(qemu) => return qemu,
                 // Another program took the port between our look and QEMU's bind.
                 Err(error) if error.contains("host forwarding") => last_error = error,
@@ -258,10 +267,15 @@ impl Qemu {
         if !state.exists() {
             erased_state(&state).map_err(|e| format!("{}: {e}", state.display()))?;
         }
+        let http_addr = match network {
+            Network::Slirp { http_port, .. } => SocketAddr::from((Ipv4Addr::LOCALHOST, http_port)),
+            Network::Tap(_) => SocketAddr::new(addr.ip(), HTTP_PORT),
+        };
         let nic = match network {
-            Network::Slirp { port } => {
-                format!("user,model=lan9118,restrict=on,hostfwd=tcp:127.0.0.1:{port}-:{MODBUS_PORT}")
-            }
+            Network::Slirp { port, http_port } => format!(
+                "user,model=lan9118,restrict=on,hostfwd=tcp:127.0.0.1:{port}-:{MODBUS_PORT},\
+                 hostfwd=tcp:127.0.0.1:{http_port}-:{HTTP_PORT}"
+            ),
             Network::Tap(_) => format!("tap,ifname={TAP},script=no,downscript=no,model=lan9118"),
         };
         let mut command = match network {
@@ -278,7 +292,7 @@ impl Qemu {
             .stdout(file(&dir.join("firmware.log"))?)
             .stderr(file(&dir.join("qemu.stderr"))?);
         let child = command.spawn().map_err(|e| format!("`timeout qemu-system-arm` does not start: {e}"))?;
-        let qemu = Self { child: Mutex::new(child), dir, elf, state, addr, ns: None };
+        let qemu = Self { child: Mutex::new(child), dir, elf, state, addr, http_addr, ns: None };
         // The monitor answers once QEMU has finished setting up (slirp's
         // forwarding included); if setting up failed, QEMU has exited.
         let deadline = Instant::now() + MONITOR_TIMEOUT;
@@ -299,6 +313,25 @@ impl Qemu {
     /// Where the firmware's Modbus server is reached from the test.
     pub fn addr(&self) -> SocketAddr {
         self.addr
+    }
+
+    /// Where the firmware's HTTP API is reached from the test (slirp: a
+    /// port of 127.0.0.1 forwarded to port 80).
+    pub fn http_addr(&self) -> SocketAddr {
+        self.http_addr
+    }
+
+    /// Cuts the power: SIGKILL to QEMU itself (not to `timeout`), which
+    /// stops the guest between two instructions. What the guest wrote to
+    /// the state file so far is there (a shared mapping); nothing more is.
+    pub fn power_cut(self) {
+        let timeout_pid = self.child.lock().expect("the child lock").id();
+        for pid in children(timeout_pid) {
+            // SAFETY: kill has no memory effects; the pid is our child's child.
+            unsafe { libc::kill(pid, libc::SIGKILL) };
+        }
+        let status = self.child.lock().expect("the child lock").wait();
+        assert!(status.is_ok(), "waiting for `timeout` after the power cut: {status:?}");
     }
 
     /// The image QEMU runs.
@@ -517,6 +550,20 @@ fn read_prompt(stream: &mut UnixStream) -> std::io::Result<String> {
         }
     }
     Ok(text)
+}
+
+/// The processes whose parent is `parent` (from /proc).
+fn children(parent: u32) -> Vec<i32> {
+    let Ok(entries) = std::fs::read_dir("/proc") else { return Vec::new() };
+    entries
+        .filter_map(|entry| entry.ok()?.file_name().to_str()?.parse::<i32>().ok())
+        .filter(|pid| {
+            // /proc/PID/stat: "pid (comm) state ppid ...", comm may hold spaces.
+            let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+            let ppid = stat.rsplit_once(')').and_then(|(_, rest)| rest.split_whitespace().nth(1));
+            ppid.and_then(|p| p.parse::<u32>().ok()) == Some(parent)
+        })
+        .collect()
 }
 
 fn free_port() -> u16 {

@@ -11,7 +11,7 @@
 use std::borrow::Cow;
 use std::time::Duration;
 
-use system_tests::qemu::{self, LED0, Qemu, SETTINGS, SETTINGS_LEN, VERSION_REGISTER};
+use system_tests::qemu::{self, LED0, Qemu, VERSION_REGISTER};
 use tokio_modbus::ExceptionCode::{IllegalDataAddress, IllegalDataValue, IllegalFunction};
 use tokio_modbus::client::{Client as _, Context, Reader as _, Writer as _};
 use tokio_modbus::{ExceptionCode, FunctionCode, ProtocolError, Request, Response};
@@ -265,37 +265,4 @@ fn link_loss_closes_the_sessions_and_the_link_s_return_brings_the_server_back() 
     assert_eq!(log.matches("lan9118: link up").count(), 2, "up at boot and again after set_link on:\n{log}");
     // The network policy saw both link-ups (and asked DHCP again on the second).
     assert_eq!(log.lines().filter(|line| line.ends_with("INFO  link up")).count(), 2, "{log}");
-}
-
-#[test]
-fn the_state_file_is_the_settings_region_and_outlives_qemu() {
-    // Marks in the file's first and last words of the settings region, put
-    // there before QEMU starts (the firmware does not write the region yet:
-    // the settings store is plugged in next).
-    const FIRST: u32 = 0x4f49_424d;
-    const LAST: u32 = 0x5354_4154;
-    let dir = std::env::temp_dir().join(format!("mbqemu-state-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let state = dir.join("psram.state");
-    qemu::erased_state(&state).unwrap();
-    let mut bytes = std::fs::read(&state).unwrap();
-    bytes[..4].copy_from_slice(&FIRST.to_le_bytes());
-    bytes[SETTINGS_LEN - 4..SETTINGS_LEN].copy_from_slice(&LAST.to_le_bytes());
-    std::fs::write(&state, &bytes).unwrap();
-    let end = SETTINGS + u32::try_from(SETTINGS_LEN).unwrap();
-    // Twice on the same file: the image loads nothing over the region and
-    // the runtime does not clear it, at either boot.
-    for boot in 1..=2 {
-        let qemu = Qemu::slirp_with_state(&state);
-        assert_eq!(qemu.state(), state);
-        qemu.run(|| async {
-            qemu.connect().await;
-        });
-        assert_eq!(qemu.read_word(SETTINGS), FIRST, "boot {boot}: the region starts the file");
-        assert_eq!(qemu.read_word(end - 4), LAST, "boot {boot}: the region's last word");
-        assert_eq!(qemu.read_word(end), 0xffff_ffff, "boot {boot}: erased past the region");
-        qemu.finish();
-    }
-    assert_eq!(std::fs::metadata(&state).unwrap().len(), qemu::STATE_LEN as u64);
-    std::fs::remove_dir_all(&dir).unwrap();
 }

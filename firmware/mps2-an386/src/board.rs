@@ -9,7 +9,9 @@
 //! | FPGA IO `LED0` (2 user LEDs) | `0x4002_8000` |
 //! | LAN9118 Ethernet | `0x4020_0000`, NVIC IRQ 13 |
 //!
-//! Digital outputs 1 and 2 drive the two FPGA user LEDs ([`Leds`]). QEMU's
+//! Digital outputs 1 and 2 drive the two FPGA user LEDs ([`Leds`]); while
+//! the HTTP API's locate runs, LED1 blinks instead of showing output 2
+//! ([`locate`]: QEMU models two user LEDs and both are outputs). QEMU's
 //! GPIO blocks are placeholders (reads 0, writes dropped), so every other
 //! point lives only in the process image: the inputs read 0 ([`RamInputs`]).
 //!
@@ -53,6 +55,7 @@ impl adapter::io::InputPins for RamInputs {
 
 mod hw {
     use core::ptr;
+    #[cfg(feature = "http")]
     use core::sync::atomic::{AtomicBool, Ordering};
     use core::task::Waker;
 
@@ -88,6 +91,7 @@ mod hw {
     }
 
     /// Set once [`settings_region`] has handed the region out.
+    #[cfg(feature = "http")]
     static SETTINGS_TAKEN: AtomicBool = AtomicBool::new(false);
 
     /// The settings region, once (later calls return `None`): memory.x's
@@ -101,7 +105,7 @@ mod hw {
     /// `memory-backend` options, or QEMU created the file itself): the store
     /// should take it as blank, not corrupt, erase it to 0xFF and log that
     /// the settings will not outlive QEMU unless it runs with a state file.
-    #[expect(dead_code, reason = "the settings store (adapter::storage) is plugged in next and takes it")]
+    #[cfg(feature = "http")]
     pub fn settings_region() -> Option<&'static mut [u8]> {
         // memory.x's symbols: the region's first byte and the byte after it.
         unsafe extern "C" {
@@ -167,8 +171,66 @@ mod hw {
     impl OutputPins for Leds {
         fn drive(&self, outputs: &Outputs) {
             let value = u32::from(outputs.digital & LED_OUTPUTS);
-            // SAFETY: LED0 is a plain read-write register of the FPGA IO block.
-            unsafe { ptr::write_volatile(FPGAIO_LED0 as *mut u32, value) }
+            #[cfg(feature = "http")]
+            let value = super::locate::overlay(value);
+            write_leds(value);
         }
+    }
+
+    /// Writes the FPGA IO `LED0` register.
+    pub(super) fn write_leds(value: u32) {
+        // SAFETY: LED0 is a plain read-write register of the FPGA IO block.
+        unsafe { ptr::write_volatile(FPGAIO_LED0 as *mut u32, value) }
+    }
+}
+
+/// Locate (the HTTP API's `POST /api/locate`) on LED1: both user LEDs are
+/// outputs, so for the blink LED1 shows the blink instead of output 2, and
+/// output 2 again once it ends (LED0 keeps showing output 1 throughout).
+#[cfg(feature = "http")]
+pub mod locate {
+    use core::sync::atomic::{AtomicU8, AtomicU32, Ordering};
+
+    /// The LED that blinks: LED1 (bit 1 of `LED0`).
+    const LOCATE_LED: u32 = 0b10;
+    /// Not locating.
+    const OFF: u8 = 0;
+    /// Locating, the LED dark.
+    const DARK: u8 = 1;
+    /// Locating, the LED lit.
+    const LIT: u8 = 2;
+
+    /// The outputs' LED bits as last driven.
+    static OUTPUTS: AtomicU32 = AtomicU32::new(0);
+    static STATE: AtomicU8 = AtomicU8::new(OFF);
+
+    /// The register value for the outputs' LED bits `value`, locate shown
+    /// over it; remembers `value` for [`show`].
+    pub(super) fn overlay(value: u32) -> u32 {
+        OUTPUTS.store(value, Ordering::Relaxed);
+        apply(value, STATE.load(Ordering::Relaxed))
+    }
+
+    fn apply(value: u32, state: u8) -> u32 {
+        match state {
+            OFF => value,
+            DARK => value & !LOCATE_LED,
+            _ => value | LOCATE_LED,
+        }
+    }
+
+    /// Shows the blink's phase (`Some(lit)`), or the outputs again (`None`).
+    pub fn show(phase: Option<bool>) {
+        let state = match phase {
+            None => OFF,
+            Some(false) => DARK,
+            Some(true) => LIT,
+        };
+        // With interrupts masked: a Modbus write cannot drive the LEDs
+        // between reading the outputs and writing the register.
+        cortex_m::interrupt::free(|_| {
+            STATE.store(state, Ordering::Relaxed);
+            super::hw::write_leds(apply(OUTPUTS.load(Ordering::Relaxed), state));
+        });
     }
 }

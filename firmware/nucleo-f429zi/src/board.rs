@@ -9,7 +9,7 @@
 //!   inputs: the chip has only 16 EXTI lines).
 //! - [`leds`]: link, Modbus traffic and fault on LD1-LD3.
 //! - [`safety`]: the independent watchdog, the HardFault handler, the reset cause.
-//! - [`flash`]: the settings flash, bank 2's sectors 12 and 13, outside the image.
+//! - [`flash`] (feature `http`): the settings flash, bank 2's sectors 12 and 13, outside the image.
 //!
 //! The pin table with header positions is in `docs/nucleo-f429zi.md`.
 
@@ -28,14 +28,19 @@ use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, eth, rng};
 use static_cell::StaticCell;
 
+#[cfg(feature = "http")]
+use crate::flash;
 use crate::pins::{self, CaptureTimer, Edges, INPUT_PULL, output};
-use crate::{ModbusServer, flash, leds, net, safety};
+use crate::{ModbusServer, leds, net, safety};
 use adapter::device::Device;
+#[cfg(feature = "http")]
+use adapter::settings::NetworkSettings;
 
 bind_interrupts!(
     /// Every interrupt the board uses, bound to its handler.
     pub struct Irqs {
         ETH => eth::InterruptHandler;
+        #[cfg(feature = "http")]
         FLASH => embassy_stm32::flash::InterruptHandler;
         HASH_RNG => rng::InterruptHandler<RNG>;
         EXTI0 => pins::EdgeInterrupt;
@@ -92,8 +97,11 @@ pub struct Board {
     /// What the board's own tasks run on; see [`spawn`].
     pub tasks: Tasks,
     /// The flash the settings are saved in (memory.x's `SETTINGS`).
-    #[expect(dead_code, reason = "the settings store (adapter::storage) is plugged in next and takes it")]
+    #[cfg(feature = "http")]
     pub settings: flash::SettingsFlash,
+    /// The RNG, kept for the admin password's salts.
+    #[cfg(feature = "http")]
+    pub rng: Rng<'static, RNG>,
 }
 
 impl core::fmt::Debug for Board {
@@ -198,7 +206,10 @@ pub fn init() -> Board {
 
     let inputs = pins::Inputs::new(edges, Adc::new(p.ADC1), [p.PA3.degrade_adc(), p.PC0.degrade_adc()]);
 
-    let seed = Rng::new(p.RNG, Irqs).next_u64();
+    let mut rng = Rng::new(p.RNG, Irqs);
+    let seed = rng.next_u64();
+    #[cfg(not(feature = "http"))]
+    drop(rng);
     let mac = adapter::net::mac_from_uid(&embassy_stm32::uid::uid());
     defmt::info!("MAC {:02x}", mac);
     // RMII: REF_CLK PA1, CRS_DV PA7, RXD0 PC4, RXD1 PC5, TXD0 PG13, TXD1 PB13, TX_EN PG11; MDIO PA2, MDC PC1.
@@ -219,25 +230,42 @@ pub fn init() -> Board {
         p.PC1,
     );
 
-    let settings = flash::settings_flash(p.FLASH);
-
-    Board { ethernet, mac, seed, outputs, inputs, tasks: Tasks { watchdog, edges, leds }, settings }
+    Board {
+        ethernet,
+        mac,
+        seed,
+        outputs,
+        inputs,
+        tasks: Tasks { watchdog, edges, leds },
+        #[cfg(feature = "http")]
+        settings: flash::settings_flash(p.FLASH),
+        #[cfg(feature = "http")]
+        rng,
+    }
 }
 
 /// Spawns the board's own tasks: the watchdog feeder, the network runner,
-/// the link supervisor, the input edges and the LEDs.
+/// the link supervisor (on `network`, the settings in force; without the
+/// `http` feature the factory settings, a constant: 40 bytes less), the input
+/// edges and the LEDs.
 pub fn spawn(
     spawner: Spawner,
     tasks: Tasks,
     runner: net::Runner,
     stack: Stack<'static>,
+    #[cfg(feature = "http")] network: &'static NetworkSettings,
     device: &'static Device<'static>,
     server: &'static ModbusServer,
 ) -> Result<(), SpawnError> {
     let Tasks { watchdog, edges, leds } = tasks;
     spawner.spawn(safety::watchdog_task(watchdog)?);
     spawner.spawn(net::runner_task(runner)?);
-    spawner.spawn(net::link_task(stack, server)?);
+    spawner.spawn(net::link_task(
+        stack,
+        #[cfg(feature = "http")]
+        network,
+        server,
+    )?);
     spawner.spawn(pins::edge_task(edges, device)?);
     spawner.spawn(leds::led_task(leds, stack, server)?);
     Ok(())

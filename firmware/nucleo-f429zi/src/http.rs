@@ -1,78 +1,92 @@
-//! NOT WIRED: the HTTP API on this board with a stand-in backend, behind
-//! the opt-in `http` feature (off by default, and not in any release
-//! image), so the API builds for the board and its flash and RAM can be
-//! measured (docs/http-api.md, *What it costs*). The board's real backend
-//! (settings saved in flash, the password hash, locate on the LEDs) is the
-//! next issue's. Until then this stand-in:
+//! Settings on the device and the HTTP API's board side (feature `http`,
+//! on by default): the settings store over bank 2's sectors 12-13
+//! ([`flash::SettingsFlash`]) and the [`Platform`] the API's
+//! [`Controller`] runs on.
 //!
-//! - puts a change in force (the Modbus server's configuration, the
-//!   watchdog) but saves nothing: a reboot forgets it;
-//! - sets no password (501), so changes are open to `allow_write`;
-//! - does not blink for locate; reboot and factory reset reset the MCU.
+//! | what | how, on this board |
+//! |---|---|
+//! | store | [`flash::SettingsFlash`]: two 16 KiB sectors, erased and written by the interrupt-driven flash driver |
+//! | model | `nucleo-f429zi` |
+//! | MAC | from the unique ID (`adapter::net::mac_from_uid`) |
+//! | network | the stack's address now, the mode it started with |
+//! | salt | 16 bytes from the hardware RNG, drawn when a password is set |
+//! | locate | LD2 (blue) blinks at 2 Hz instead of the traffic flashes ([`leds::locate`]) |
+//! | reboot | `SYSRESETREQ` (`SCB::sys_reset`) |
 
-use core::cell::Cell;
+use core::cell::RefCell;
 
-use adapter::http::{self, Backend, Http, MAX_HTTP_CONNECTIONS, NetworkStatus, Refusal};
-use adapter::settings::{Cidr, Ipv4, Settings};
+use adapter::device::Device;
+use adapter::http::{Controller, Http, NetworkStatus, Platform};
+use adapter::server::Server;
+use adapter::settings::{NetMode, Settings};
+use adapter::storage::{Loaded, Store};
 use defmt::unwrap;
-use embassy_executor::Spawner;
 use embassy_net::Stack;
+use embassy_stm32::peripherals::RNG;
+use embassy_stm32::rng::Rng;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_time::Duration;
 use static_cell::StaticCell;
 
-use crate::{ModbusServer, SETTINGS};
-use adapter::device::Device;
-use adapter::server::Server;
+use crate::{SETTINGS, flash, leds};
 
-/// The stand-in backend (see the module's documentation: NOT WIRED).
-pub struct StubBackend {
-    server: &'static ModbusServer,
-    stack: Stack<'static>,
-    mac: [u8; 6],
-    settings: Mutex<CriticalSectionRawMutex, Cell<Settings>>,
+/// The API's backend on this board.
+pub type Backend = Controller<'static, flash::SettingsFlash, Nucleo>;
+/// The HTTP API over it.
+pub type Api = Http<'static, Backend>;
+
+/// The settings store over the settings flash, and what it holds. A load
+/// that found something wrong is a warning: the factory settings stand in
+/// for what cannot be read, and `/api/status` reports the storage not ok.
+pub async fn load(flash: flash::SettingsFlash) -> (Store<flash::SettingsFlash>, Loaded) {
+    // memory.x's region, checked whole sectors at compile time: a failure
+    // is a build mistake, and its panic ends in the fault handler.
+    let mut store = unwrap!(Store::new(flash, 0..flash::SETTINGS_LEN));
+    let loaded = store.load(&SETTINGS).await;
+    if let Some(error) = loaded.error {
+        defmt::warn!("settings: {}", error);
+    }
+    defmt::info!("settings: {} records; storage ok: {}", loaded.status.records, loaded.status.ok);
+    (store, loaded)
 }
 
-impl Backend for StubBackend {
-    fn server(&self) -> &Server<'_, Device<'_>> {
-        self.server
+/// The API over `store`, as `loaded` found it, for the server built from
+/// `settings` (the settings in force).
+pub fn api(
+    server: &'static Server<'static, Device<'static>>,
+    platform: Nucleo,
+    store: Store<flash::SettingsFlash>,
+    loaded: &Loaded,
+) -> &'static Api {
+    static BACKEND: StaticCell<Backend> = StaticCell::new();
+    static API: StaticCell<Api> = StaticCell::new();
+    let backend = BACKEND.init(Controller::new(server, platform, store, loaded));
+    API.init(Http::new(backend))
+}
+
+/// What only this board knows or does, for the HTTP API.
+pub struct Nucleo {
+    stack: Stack<'static>,
+    mac: [u8; 6],
+    mode: NetMode,
+    rng: Mutex<CriticalSectionRawMutex, RefCell<Rng<'static, RNG>>>,
+}
+
+impl core::fmt::Debug for Nucleo {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Nucleo").field("mac", &self.mac).finish_non_exhaustive()
     }
+}
 
-    fn settings(&self) -> Settings {
-        self.settings.lock(Cell::get)
+impl Nucleo {
+    /// The platform of `stack`, started with `settings`, on the MAC `mac`, drawing salts from `rng`.
+    pub fn new(stack: Stack<'static>, mac: [u8; 6], settings: &Settings, rng: Rng<'static, RNG>) -> Self {
+        Self { stack, mac, mode: settings.network.mode, rng: Mutex::new(RefCell::new(rng)) }
     }
+}
 
-    async fn apply(&self, settings: &Settings) -> Result<bool, Refusal> {
-        let old = self.settings.lock(|cell| cell.replace(*settings));
-        let port = self.server.config().port;
-        self.server.set_config(adapter::server::Config { port, ..settings.server_config() });
-        self.server.service().set_watchdog(settings.watchdog());
-        Ok(old.reboot_required(settings))
-    }
-
-    fn password_set(&self) -> bool {
-        false
-    }
-
-    async fn verify_password(&self, _password: &[u8]) -> bool {
-        false
-    }
-
-    async fn set_password(&self, _password: &[u8]) -> Result<(), Refusal> {
-        Err(Refusal::Unsupported)
-    }
-
-    fn reboot(&self) {
-        cortex_m::peripheral::SCB::sys_reset();
-    }
-
-    async fn factory_reset(&self) {
-        cortex_m::peripheral::SCB::sys_reset();
-    }
-
-    fn locate(&self, _duration: Duration) {}
-
+impl Platform for Nucleo {
     fn model(&self) -> &'static str {
         "nucleo-f429zi"
     }
@@ -82,35 +96,25 @@ impl Backend for StubBackend {
     }
 
     fn network(&self) -> NetworkStatus {
-        let config = self.stack.config_v4();
-        NetworkStatus {
-            mode: SETTINGS.network.mode,
-            address: config
-                .as_ref()
-                .map(|c| Cidr { address: c.address.address().octets(), prefix_len: c.address.prefix_len() }),
-            gateway: config.and_then(|c| c.gateway).map(|gateway| Ipv4(gateway.octets())),
-            link: self.stack.is_link_up(),
-        }
+        NetworkStatus::of(self.stack, self.mode)
     }
-}
 
-/// The API over the stand-in backend.
-pub type Api = Http<'static, StubBackend>;
-
-/// One HTTP listener per connection; its buffers live in the task's static storage.
-#[embassy_executor::task(pool_size = MAX_HTTP_CONNECTIONS)]
-async fn http_task(stack: Stack<'static>, api: &'static Api) -> ! {
-    http::listen(stack, api, http::HTTP_PORT).await
-}
-
-/// Starts the HTTP listeners.
-pub fn spawn(spawner: Spawner, stack: Stack<'static>, server: &'static ModbusServer, mac: [u8; 6]) {
-    static BACKEND: StaticCell<StubBackend> = StaticCell::new();
-    static API: StaticCell<Api> = StaticCell::new();
-    let backend = BACKEND.init(StubBackend { server, stack, mac, settings: Mutex::new(Cell::new(SETTINGS)) });
-    let api = &*API.init(Http::new(backend));
-    for _ in 0..MAX_HTTP_CONNECTIONS {
-        spawner.spawn(unwrap!(http_task(stack, api)));
+    fn reboot(&self) {
+        defmt::info!("rebooting (SYSRESETREQ)");
+        cortex_m::peripheral::SCB::sys_reset()
     }
-    defmt::warn!("HTTP API on port {} with a stand-in backend: NOT WIRED (changes are not saved)", http::HTTP_PORT);
+
+    fn locate(&self, duration: Duration) {
+        leds::locate(duration);
+    }
+
+    fn salt(&self) -> [u8; 16] {
+        let mut salt = [0u8; 16];
+        self.rng.lock(|rng| {
+            if let Ok(mut rng) = rng.try_borrow_mut() {
+                rng.fill_bytes(&mut salt);
+            }
+        });
+        salt
+    }
 }

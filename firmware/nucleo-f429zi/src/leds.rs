@@ -3,7 +3,7 @@
 //! | LED | colour | pin | shows |
 //! |---|---|---|---|
 //! | LD1 | green | PB0 | off: no Ethernet link; blinking: link, no address yet; on: link and address |
-//! | LD2 | blue | PB7 | flashes for each Modbus connection and request ([`TRAFFIC_FLASH`]) |
+//! | LD2 | blue | PB7 | flashes for each Modbus connection and request ([`TRAFFIC_FLASH`]); blinks at 2 Hz while the HTTP API's locate runs ([`locate`]) |
 //! | LD3 | red | PB14 | on: a fault (outputs off, reset follows); on for [`WATCHDOG_SHOWN`] after a watchdog reset |
 
 use embassy_net::Stack;
@@ -18,6 +18,24 @@ pub const TRAFFIC_FLASH: Duration = Duration::from_millis(50);
 const BLINK_TICKS: u32 = 5;
 /// How long LD3 stays on after a watchdog reset.
 pub const WATCHDOG_SHOWN: Duration = Duration::from_secs(10);
+/// LD2's locate blink half-period, in LED ticks (250 ms: 2 Hz).
+#[cfg(feature = "http")]
+const LOCATE_TICKS: u32 = 5;
+
+/// Until when LD2 blinks for locate (`POST /api/locate`).
+#[cfg(feature = "http")]
+static LOCATE_UNTIL: embassy_sync::blocking_mutex::Mutex<
+    embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex,
+    core::cell::Cell<Instant>,
+> = embassy_sync::blocking_mutex::Mutex::new(core::cell::Cell::new(Instant::from_ticks(0)));
+
+/// Blinks LD2 for `duration` from now, in place of the traffic flashes
+/// (no LED is free: LD1 is the link, LD3 the fault, which must not be
+/// mistaken for a blink).
+#[cfg(feature = "http")]
+pub fn locate(duration: Duration) {
+    LOCATE_UNTIL.lock(|until| until.set(Instant::now() + duration));
+}
 
 /// The LEDs and what the last reset was.
 pub struct Leds {
@@ -48,7 +66,14 @@ pub async fn led_task(mut leds: Leds, stack: Stack<'static>, shared: &'static Mo
 
         // Request times only grow, so anything newer than `seen` is new traffic.
         let activity = shared.slots().last_activity();
-        leds.traffic.set_level(Level::from(activity > seen));
+        let traffic = activity > seen;
+        #[cfg(feature = "http")]
+        let traffic = if Instant::now() < LOCATE_UNTIL.lock(core::cell::Cell::get) {
+            (tick / LOCATE_TICKS).is_multiple_of(2)
+        } else {
+            traffic
+        };
+        leds.traffic.set_level(Level::from(traffic));
         seen = seen.max(activity);
 
         leds.fault.set_level(Level::from(Instant::now() < fault_until));

@@ -7,8 +7,10 @@ use embassy_stm32::eth::{Ethernet, GenericPhy, PacketQueue, Sma};
 use embassy_stm32::peripherals::{ETH, ETH_SMA};
 use static_cell::StaticCell;
 
-use crate::{ModbusServer, SETTINGS};
+use crate::ModbusServer;
 use adapter::server::SOCKET_POOL;
+#[cfg(feature = "http")]
+use adapter::settings::NetworkSettings;
 
 /// The Ethernet driver: the MAC with a generic SMI PHY (the LAN8742A answers at address 0).
 pub type Device = Ethernet<'static, ETH, GenericPhy<Sma<'static, ETH_SMA>>>;
@@ -45,8 +47,14 @@ pub async fn runner_task(mut runner: Runner) -> ! {
     runner.run().await
 }
 
-/// Follows the link: the address on each link-up, closed sessions on each link loss.
+/// Follows the link with `network` (the settings in force): the address on each link-up, closed sessions on each link loss.
 #[embassy_executor::task]
-pub async fn link_task(stack: Stack<'static>, server: &'static ModbusServer) -> ! {
-    adapter::net::run(stack, &SETTINGS.network, server).await
+pub async fn link_task(
+    stack: Stack<'static>,
+    #[cfg(feature = "http")] network: &'static NetworkSettings,
+    server: &'static ModbusServer,
+) -> ! {
+    #[cfg(not(feature = "http"))]
+    let network = &crate::SETTINGS.network;
+    adapter::net::run(stack, network, server).await
 }

@@ -26,6 +26,22 @@ pub struct NetworkStatus {
     pub link: bool,
 }
 
+impl NetworkStatus {
+    /// The network of `stack` now, which started in `mode`: what every
+    /// board's backend reports.
+    pub fn of(stack: embassy_net::Stack<'_>, mode: NetMode) -> Self {
+        let config = stack.config_v4();
+        Self {
+            mode,
+            address: config
+                .as_ref()
+                .map(|c| Cidr { address: c.address.address().octets(), prefix_len: c.address.prefix_len() }),
+            gateway: config.and_then(|c| c.gateway).map(|gateway| Ipv4(gateway.octets())),
+            link: stack.is_link_up(),
+        }
+    }
+}
+
 /// Where the robot's points come from (DEVICE.md section 2, `robot.source`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
