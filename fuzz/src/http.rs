@@ -24,7 +24,7 @@ use adapter::http::{self, Action, Backend, Buffers, Http, NetworkStatus, Refusal
 use adapter::server::{Server, Watchdog};
 use adapter::settings::{Field, Kind, NetMode, Settings};
 use embassy_time::{Duration, MockDriver};
-use test_support::duplex::{Wire, poll_once};
+use test_support::duplex::poll_once;
 
 use crate::check::Pins;
 use crate::input::{
@@ -182,18 +182,8 @@ pub fn http(data: &[u8]) {
     };
     let api = Http::new(&backend);
 
-    let (wire, end) = Wire::new();
-    wire.read_sizes(input.cuts.iter().map(|&cut| usize::from(cut)));
-    wire.stall_reads(flag(HTTP_STALL_READS));
-    if flag(HTTP_PARTIAL_WRITES) {
-        let sizes: Vec<usize> = match input.cuts {
-            [] => vec![1],
-            cuts => cuts.iter().map(|&cut| 1 + usize::from(cut % 16)).collect(),
-        };
-        wire.write_sizes(sizes);
-        wire.stall_writes(true);
-    }
-    wire.send(input.stream);
+    let (wire, end) =
+        crate::connection::shaped(input.stream, input.cuts, flag(HTTP_STALL_READS), flag(HTTP_PARTIAL_WRITES));
     if !flag(HTTP_KEEP_OPEN) {
         wire.close();
     }
