@@ -7,7 +7,7 @@
 mod stats;
 mod watchdog;
 
-use core::cell::{Cell, RefCell};
+use core::cell::RefCell;
 
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
@@ -24,10 +24,11 @@ use crate::server::handler::{self, Outcome, Policy};
 /// How often the source-backed points are refreshed and re-asserted.
 pub const REFRESH_PERIOD: Duration = Duration::from_millis(100);
 
-/// What the image lock guards: the image, and the watchdog's view of the
-/// requests that change or read it.
+/// What the image lock guards: the image, the watchdog in force and its
+/// view of the requests that change or read it (one lock per request).
 struct State {
     image: Image,
+    watchdog: Watchdog,
     monitor: watchdog::Monitor,
 }
 
@@ -36,7 +37,6 @@ struct State {
 /// watchdog and the counters.
 pub struct Device<'a> {
     state: Mutex<CriticalSectionRawMutex, RefCell<State>>,
-    watchdog: Mutex<CriticalSectionRawMutex, Cell<Watchdog>>,
     outputs: &'a dyn OutputPins,
     version: Version,
     stats: Stats,
@@ -56,14 +56,8 @@ impl<'a> Device<'a> {
     pub fn new(watchdog: Watchdog, version: Version, outputs: &'a dyn OutputPins) -> Self {
         let mut image = Image::new();
         image.set_version(&version);
-        let state = State { image, monitor: watchdog::Monitor::new(Instant::now()) };
-        Self {
-            state: Mutex::new(RefCell::new(state)),
-            watchdog: Mutex::new(Cell::new(watchdog)),
-            outputs,
-            version,
-            stats: Stats::new(),
-        }
+        let state = State { image, watchdog, monitor: watchdog::Monitor::new(Instant::now()) };
+        Self { state: Mutex::new(RefCell::new(state)), outputs, version, stats: Stats::new() }
     }
 
     /// The diagnostics counters.
@@ -73,7 +67,7 @@ impl<'a> Device<'a> {
 
     /// The watchdog in force.
     pub fn watchdog(&self) -> Watchdog {
-        self.watchdog.lock(Cell::get)
+        self.state.lock(|state| state.borrow().watchdog)
     }
 
     /// Whether the watchdog has put the outputs in their safe state and no
@@ -84,15 +78,15 @@ impl<'a> Device<'a> {
 
     /// Puts a new watchdog configuration in force at once.
     pub fn set_watchdog(&self, watchdog: Watchdog) {
-        self.watchdog.lock(|cell| cell.set(watchdog));
+        self.state.lock(|state| state.borrow_mut().watchdog = watchdog);
     }
 
     /// Answers one request frame into `reply` under `policy`, drives the
     /// outputs at once if the request changed them, feeds the watchdog and counts.
     pub fn respond(&self, frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], policy: &Policy) -> Outcome {
-        let watching = self.watchdog().timeout.is_some();
         let outcome = self.state.lock(|state| {
             let state = &mut *state.borrow_mut();
+            let watching = state.watchdog.timeout.is_some();
             let outcome = handler::respond(frame, reply, &mut state.image, policy);
             if let Outcome::Reply { written, exception, .. } = outcome {
                 if written.outputs {
@@ -131,22 +125,21 @@ impl<'a> Device<'a> {
     /// Puts the outputs in their safe state if no valid request has come for
     /// the watchdog's timeout (once per silence). Returns whether it tripped.
     pub fn check_watchdog(&self) -> bool {
-        let watchdog = self.watchdog();
-        let Some(timeout) = watchdog.timeout else { return false };
         let tripped = self.state.lock(|state| {
             let state = &mut *state.borrow_mut();
-            let trips = state.monitor.check(Instant::now(), timeout);
-            if trips {
-                watchdog.safe_state.apply(&mut state.image);
-                self.outputs.drive(&state.image.outputs());
+            let timeout = state.watchdog.timeout?;
+            if !state.monitor.check(Instant::now(), timeout) {
+                return None;
             }
-            trips
+            state.watchdog.safe_state.apply(&mut state.image);
+            self.outputs.drive(&state.image.outputs());
+            Some(timeout)
         });
-        if tripped {
+        if let Some(timeout) = tripped {
             Stats::count(&self.stats.watchdog_trips);
             warn!("watchdog: no valid request for {} ms: outputs in their safe state", timeout.as_millis());
         }
-        tripped
+        tripped.is_some()
     }
 
     /// An edge on the ControlBox digital inputs (bit n = input n + 1): an event.
