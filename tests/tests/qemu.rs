@@ -245,11 +245,14 @@ fn link_loss_closes_the_sessions_and_the_link_s_return_brings_the_server_back() 
     qemu.run(|| async {
         let mut held = qemu.connect().await;
         held.write_single_register(200, 0x1234).await.unwrap().unwrap();
+        // The network policy has seen the link and the address (it logs on its 100 ms tick).
+        qemu.wait_for_log("Modbus TCP server at", Duration::from_secs(2));
         // The cable out: the driver sees it, and the session it held is
         // closed (by the stack, as DHCP's address goes with the link, or else
         // by the network policy; its RST cannot leave, the link is down).
         qemu.monitor(&format!("set_link {NIC} off"));
         qemu.wait_for_log("lan9118: link down", Duration::from_secs(5));
+        // The policy looks at the link every 100 ms: wait until it saw the loss.
         let log = qemu.wait_for_log("link down: closing", Duration::from_secs(5));
         assert!(log.contains(": closing 10.0.2.2") || log.contains("link down: closing 1 sessions"), "{log}");
         qemu.monitor(&format!("set_link {NIC} on"));
@@ -263,6 +266,7 @@ fn link_loss_closes_the_sessions_and_the_link_s_return_brings_the_server_back() 
     });
     let log = qemu.finish();
     assert_eq!(log.matches("lan9118: link up").count(), 2, "up at boot and again after set_link on:\n{log}");
-    // The network policy saw both link-ups (and asked DHCP again on the second).
-    assert_eq!(log.lines().filter(|line| line.ends_with("INFO  link up")).count(), 2, "{log}");
+    // The network policy saw the link come back (and asked DHCP again).
+    let after_loss = log.split_once("lan9118: link down").map_or("", |(_, rest)| rest);
+    assert!(after_loss.lines().any(|line| line.ends_with("INFO  link up")), "{log}");
 }
