@@ -135,7 +135,8 @@ fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>, fl
     device.drive_outputs();
     let server: &'static ModbusServer = Box::leak(Box::new(Server::new(settings.server_config(), device)));
     let board: &'static Board = Box::leak(Box::new(Board::new(device, outputs, SimRobot::new(options.robot))));
-    let platform = SimPlatform::new(stack, settings.network.mode);
+    // No API (`--http-port 0`): no port for `modbus.port` to avoid (0 is never a Modbus port).
+    let platform = SimPlatform::new(stack, settings.network.mode, options.http_port.unwrap_or(0));
     let controller: &'static SimController = Box::leak(Box::new(SimController::new(server, platform, store, &loaded)));
     let api: &'static Api = Box::leak(Box::new(Http::new(controller)));
     let options: &'static Options = Box::leak(Box::new(options));

@@ -16,7 +16,7 @@ use std::io::Read as _;
 use std::os::unix::ffi::OsStrExt as _;
 
 use adapter::http::{Controller, NetworkStatus, Platform, RobotSource};
-use adapter::settings::{Cidr, Ipv4, NetMode};
+use adapter::settings::NetMode;
 use embassy_net::Stack;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
@@ -39,6 +39,8 @@ pub struct SimPlatform {
     stack: Stack<'static>,
     /// The network mode the device started with.
     mode: NetMode,
+    /// The API's port (`--http-port`).
+    http_port: u16,
     /// Until when the (simulated) status LED blinks.
     locate_until: Cell<Option<Instant>>,
 }
@@ -50,8 +52,8 @@ impl std::fmt::Debug for SimPlatform {
 }
 
 impl SimPlatform {
-    pub fn new(stack: Stack<'static>, mode: NetMode) -> Self {
-        Self { stack, mode, locate_until: Cell::new(None) }
+    pub fn new(stack: Stack<'static>, mode: NetMode, http_port: u16) -> Self {
+        Self { stack, mode, http_port, locate_until: Cell::new(None) }
     }
 
     /// Whether the status LED blinks now (`POST /api/locate`, for 10 s).
@@ -70,15 +72,11 @@ impl Platform for SimPlatform {
     }
 
     fn network(&self) -> NetworkStatus {
-        let config = self.stack.config_v4();
-        NetworkStatus {
-            mode: self.mode,
-            address: config
-                .as_ref()
-                .map(|c| Cidr { address: c.address.address().octets(), prefix_len: c.address.prefix_len() }),
-            gateway: config.and_then(|c| c.gateway).map(|gateway| Ipv4(gateway.octets())),
-            link: self.stack.is_link_up(),
-        }
+        NetworkStatus::of(self.stack, self.mode)
+    }
+
+    fn http_port(&self) -> u16 {
+        self.http_port
     }
 
     fn reboot(&self) {

@@ -50,6 +50,10 @@ pub const SETTINGS: Settings = Settings {
 }
 .with_build_env();
 
+// `MODBUS_PORT` may not take the API's port (the API refuses it at run time).
+#[cfg(feature = "http")]
+const _: () = assert!(SETTINGS.modbus.port != adapter::http::HTTP_PORT, "MODBUS_PORT must not be the HTTP port");
+
 /// The Modbus server over the device.
 type ModbusServer = Server<'static, Device<'static>>;
 

@@ -10,6 +10,7 @@
 //! - [`leds`]: link, Modbus traffic and fault on LD1-LD3.
 //! - [`safety`]: the independent watchdog, the HardFault handler, the reset cause.
 //! - [`flash`] (feature `http`): the settings flash, bank 2's sectors 12 and 13, outside the image.
+//! - [`button`] (feature `http`): factory reset by the user button held at power-up.
 //!
 //! The pin table with header positions is in `docs/nucleo-f429zi.md`.
 
@@ -28,10 +29,10 @@ use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, eth, rng};
 use static_cell::StaticCell;
 
-#[cfg(feature = "http")]
-use crate::flash;
 use crate::pins::{self, CaptureTimer, Edges, INPUT_PULL, output};
 use crate::{ModbusServer, leds, net, safety};
+#[cfg(feature = "http")]
+use crate::{button, flash};
 use adapter::device::Device;
 #[cfg(feature = "http")]
 use adapter::settings::NetworkSettings;
@@ -99,6 +100,9 @@ pub struct Board {
     /// The flash the settings are saved in (memory.x's `SETTINGS`).
     #[cfg(feature = "http")]
     pub settings: flash::SettingsFlash,
+    /// The user button was held at power-up ([`button`]): erase the settings first.
+    #[cfg(feature = "http")]
+    pub factory_reset: bool,
     /// The RNG, kept for the admin password's salts.
     #[cfg(feature = "http")]
     pub rng: Rng<'static, RNG>,
@@ -140,6 +144,15 @@ pub fn init() -> Board {
         traffic: Output::new(p.PB7, Level::Low, Speed::Low),
         fault: Output::new(p.PB14, Level::Low, Speed::Low),
         watchdog_reset: reset == safety::ResetCause::Watchdog,
+    };
+    // B1 pulls PC13 up to 3V3 when pressed (UM1974); the internal pull-down
+    // keeps it low when released, beside the board's own.
+    #[cfg(feature = "http")]
+    let (watchdog, leds, factory_reset) = {
+        let (mut watchdog, mut leds) = (watchdog, leds);
+        let button = embassy_stm32::gpio::Input::new(p.PC13, embassy_stm32::gpio::Pull::Down);
+        let held = button::factory_reset_held(&button, &mut watchdog, &mut leds);
+        (watchdog, leds, held)
     };
 
     // Outputs first, all off.
@@ -239,6 +252,8 @@ pub fn init() -> Board {
         tasks: Tasks { watchdog, edges, leds },
         #[cfg(feature = "http")]
         settings: flash::settings_flash(p.FLASH),
+        #[cfg(feature = "http")]
+        factory_reset,
         #[cfg(feature = "http")]
         rng,
     }

@@ -36,13 +36,20 @@ pub type Backend = Controller<'static, flash::SettingsFlash, Nucleo>;
 /// The HTTP API over it.
 pub type Api = Http<'static, Backend>;
 
-/// The settings store over the settings flash, and what it holds. A load
+/// The settings store over the settings flash, and what it holds, erased
+/// first when `factory_reset` (the user button held at power-up). A load
 /// that found something wrong is a warning: the factory settings stand in
 /// for what cannot be read, and `/api/status` reports the storage not ok.
-pub async fn load(flash: flash::SettingsFlash) -> (Store<flash::SettingsFlash>, Loaded) {
+pub async fn load(flash: flash::SettingsFlash, factory_reset: bool) -> (Store<flash::SettingsFlash>, Loaded) {
     // memory.x's region, checked whole sectors at compile time: a failure
     // is a build mistake, and its panic ends in the fault handler.
     let mut store = unwrap!(Store::new(flash, 0..flash::SETTINGS_LEN));
+    if factory_reset {
+        match store.factory_reset().await {
+            Ok(()) => defmt::warn!("settings: factory reset by the user button"),
+            Err(error) => defmt::error!("settings: the factory reset failed: {}", error),
+        }
+    }
     let loaded = store.load(&SETTINGS).await;
     if let Some(error) = loaded.error {
         defmt::warn!("settings: {}", error);

@@ -11,6 +11,8 @@
 
 mod board;
 #[cfg(feature = "http")]
+mod button;
+#[cfg(feature = "http")]
 mod flash;
 #[cfg(feature = "http")]
 mod http;
@@ -32,6 +34,10 @@ use static_cell::StaticCell;
 /// The factory settings: the defaults with the build's variables applied
 /// (a bad value stops the build).
 pub const SETTINGS: Settings = Settings::DEFAULT.with_build_env();
+
+// `MODBUS_PORT` may not take the API's port (the API refuses it at run time).
+#[cfg(feature = "http")]
+const _: () = assert!(SETTINGS.modbus.port != adapter::http::HTTP_PORT, "MODBUS_PORT must not be the HTTP port");
 
 /// The Modbus server over the device.
 pub type ModbusServer = Server<'static, Device<'static>>;
@@ -57,7 +63,7 @@ async fn main(spawner: Spawner) {
     // are saved or they cannot be taken whole), or without the store the
     // factory settings.
     #[cfg(feature = "http")]
-    let (store, loaded) = http::load(board.settings).await;
+    let (store, loaded) = http::load(board.settings, board.factory_reset).await;
     #[cfg(feature = "http")]
     let settings: &'static Settings = {
         static IN_FORCE: StaticCell<Settings> = StaticCell::new();

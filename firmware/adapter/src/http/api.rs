@@ -253,6 +253,10 @@ impl<B: Backend> Api<'_, '_, '_, B> {
                 report.add(Key::Field(field), rule);
             }
         }
+        if report.is_empty() && new.modbus.port == backend.http_port() {
+            // The settings alone cannot know it: the program's rule.
+            report.add(Key::Field(Field::ModbusPort), "must not be the HTTP port");
+        }
         if !report.is_empty() {
             report.finish();
             return Reply::new(StatusCode::BAD_REQUEST);

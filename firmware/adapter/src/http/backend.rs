@@ -133,6 +133,11 @@ pub trait Backend {
     /// The network as it is now.
     fn network(&self) -> NetworkStatus;
 
+    /// The port the API listens on, which `modbus.port` may not take.
+    fn http_port(&self) -> u16 {
+        super::HTTP_PORT
+    }
+
     // Hooks for what the adapter does not measure or have yet: each
     // reports `null` in `/api/status` until a board implements it.
 

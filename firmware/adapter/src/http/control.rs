@@ -34,6 +34,10 @@ pub trait Platform {
     fn locate(&self, duration: Duration);
     /// 16 unpredictable bytes for a password's salt.
     fn salt(&self) -> [u8; 16];
+    /// The port the API listens on (hal-sim: `--http-port`).
+    fn http_port(&self) -> u16 {
+        super::HTTP_PORT
+    }
     /// Where the robot's points come from.
     fn robot_source(&self) -> RobotSource {
         RobotSource::None
@@ -153,6 +157,10 @@ impl<F: NorFlash, P: Platform> Backend for Controller<'_, F, P> {
 
     fn mac(&self) -> [u8; 6] {
         self.platform.mac()
+    }
+
+    fn http_port(&self) -> u16 {
+        self.platform.http_port()
     }
 
     fn network(&self) -> NetworkStatus {

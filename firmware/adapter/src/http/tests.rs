@@ -168,6 +168,10 @@ fn a_bad_change_is_refused_field_by_field_and_changes_nothing() {
     );
     let response = put_settings(http, &clock, r#"{"modbus": {"unit_id": 5, "unit_id": 5}}"#);
     assert_eq!(response.json(), json!({"errors": {"modbus.unit_id": "given more than once"}}));
+    // The rule the settings cannot check alone: the API's own port.
+    let response = put_settings(http, &clock, r#"{"modbus": {"port": 80}}"#);
+    assert_eq!(response.status, 400);
+    assert_eq!(response.json(), json!({"errors": {"modbus.port": "must not be the HTTP port"}}));
     assert_eq!(backend.settings(), before);
     assert_eq!(backend.applied.get(), 0);
 }
