@@ -70,10 +70,14 @@ fn help_and_version_exit_zero() {
 #[test]
 fn a_tap_that_cannot_be_opened_names_the_privilege_and_the_fix() {
     let ns = Namespace::new().unwrap();
-    // As an ordinary user with no capabilities: /dev/net/tun or TUNSETIFF refuses.
+    // A TAP that belongs to root (a TAP with no owner lets anyone attach),
+    // opened by an ordinary user with no capabilities: TUNSETIFF refuses.
+    ns.ip(&["tuntap", "del", "dev", TAP, "mode", "tap"]).unwrap();
+    ns.ip(&["tuntap", "add", "dev", TAP, "mode", "tap", "user", "0", "group", "0"]).unwrap();
     let output = ns
         .command("setpriv")
         .args(["--reuid=65534", "--regid=65534", "--clear-groups", "--inh-caps=-all", "--bounding-set=-all"])
+        .args(["timeout", "10"])
         .arg(binary())
         .args(["--tap", TAP])
         .output()
