@@ -13,6 +13,7 @@ use picoserve::routing::PathRouterService;
 use super::auth::{self, Credentials, MAX_CREDENTIALS_LEN};
 use super::backend::{Backend, Refusal, RobotSource};
 use super::json::{Malformed, Out, Reader, Str, Value};
+use super::page;
 use super::{AUTH_FAILURE_DELAY, Action, Http, LOCATE_DURATION, MAX_PASSWORD_LEN, MIN_PASSWORD_LEN, REALM_HEADER};
 use crate::io::AnalogType;
 use crate::map::Image;
@@ -34,6 +35,7 @@ const ADMIN: &str = "admin";
 /// What a request asks for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum Endpoint {
+    Page,
     Status,
     GetSettings,
     PutSettings,
@@ -54,6 +56,8 @@ pub(super) enum Miss {
 /// The endpoint for `method` on `path` (the path without its query).
 pub(super) fn route(method: &str, path: &str) -> Result<Endpoint, Miss> {
     let (allowed, endpoint) = match (path, method) {
+        ("/", "GET") => ("", Some(Endpoint::Page)),
+        ("/", _) => ("GET", None),
         ("/api/status", "GET") => ("", Some(Endpoint::Status)),
         ("/api/status", _) => ("GET", None),
         ("/api/settings", "GET") => ("", Some(Endpoint::GetSettings)),
@@ -65,22 +69,26 @@ pub(super) fn route(method: &str, path: &str) -> Result<Endpoint, Miss> {
         ("/api/factory-reset", "POST") => ("", Some(Endpoint::FactoryReset)),
         ("/api/locate", "POST") => ("", Some(Endpoint::Locate)),
         ("/api/reboot" | "/api/factory-reset" | "/api/locate", _) => ("POST", None),
-        // The page, /api/events and /api/firmware come later: 404 until then.
+        // /api/events and /api/firmware come later: 404 until then.
         _ => return Err(Miss::NotFound),
     };
     endpoint.ok_or(Miss::MethodNotAllowed(allowed))
 }
 
-/// A response's status and the one header it may add.
+/// A response's status, the one header it may add, and whether its body
+/// is the page (from flash) rather than the JSON written into the response
+/// buffer. (A flag, not the body itself: a reply lives across `.await`s,
+/// in every connection's future, where each byte more is static RAM.)
 #[derive(Clone, Copy, Debug)]
 struct Reply {
     status: StatusCode,
     header: Option<(&'static str, &'static str)>,
+    page: bool,
 }
 
 impl Reply {
     const fn new(status: StatusCode) -> Self {
-        Self { status, header: None }
+        Self { status, header: None, page: false }
     }
 }
 
@@ -130,8 +138,11 @@ impl<B: Backend> PathRouterService for &Api<'_, '_, '_, B> {
             }
         }
         let connection = body_connection.finalize().await?;
-        let response = Response::new(reply.status, out.as_bytes())
-            .with_content_type(JSON)
+        // One response type for the JSON and the page: picoserve's response
+        // writing is generic, and each type would be another copy in flash.
+        let (content_type, body) = if reply.page { (page::CONTENT_TYPE, page::PAGE) } else { (JSON, out.as_bytes()) };
+        let response = Response::new(reply.status, body)
+            .with_content_type(content_type)
             .with_headers(("Cache-Control", "no-store"))
             .with_headers(reply.header);
         response_writer.write_response(connection, response).await
@@ -158,6 +169,17 @@ impl<B: Backend> Api<'_, '_, '_, B> {
             }
         };
         match endpoint {
+            Endpoint::Page => {
+                let encodings = parts.headers().get("accept-encoding").map(|value| value.as_raw());
+                if !page::accepts_gzip(encodings) {
+                    return refusal(out, StatusCode::NOT_ACCEPTABLE, "request", page::NOT_ACCEPTABLE);
+                }
+                return Reply {
+                    status: StatusCode::OK,
+                    header: Some(("Content-Encoding", page::ENCODING)),
+                    page: true,
+                };
+            }
             Endpoint::Status => {
                 self.status(out);
                 return Reply::new(StatusCode::OK);
@@ -200,7 +222,7 @@ impl<B: Backend> Api<'_, '_, '_, B> {
                 out.text("}");
                 Reply::new(StatusCode::OK)
             }
-            Endpoint::Status | Endpoint::GetSettings => Reply::new(StatusCode::INTERNAL_SERVER_ERROR),
+            Endpoint::Page | Endpoint::Status | Endpoint::GetSettings => Reply::new(StatusCode::INTERNAL_SERVER_ERROR),
         }
     }
 

@@ -1,7 +1,8 @@
-//! The HTTP JSON API (DEVICE.md section 2), behind the `http` feature:
-//! `GET /api/status`, `GET` and `PUT /api/settings`, `PUT /api/password`,
-//! `POST /api/reboot`, `/api/factory-reset` and `/api/locate`
-//! (docs/http-api.md has every request and response).
+//! The HTTP JSON API and the device's page (DEVICE.md section 2), behind
+//! the `http` feature: `GET /` (the page, [`page`]), `GET /api/status`,
+//! `GET` and `PUT /api/settings`, `PUT /api/password`, `POST /api/reboot`,
+//! `/api/factory-reset` and `/api/locate` (docs/http-api.md has every
+//! request and response).
 //!
 //! - [`Backend`] is what a program (a board, hal-sim) gives the API: the
 //!   Modbus server and device, the settings store, the password, reboot.
@@ -32,6 +33,7 @@ mod control;
 pub mod head;
 pub mod json;
 mod listener;
+pub mod page;
 mod stream;
 
 use core::cell::Cell;

@@ -75,6 +75,40 @@ fn the_status_document_shows_the_device() {
 }
 
 #[test]
+fn the_page_is_served_gzipped_from_flash_to_a_client_that_takes_gzip() {
+    let clock = Clock::take();
+    let http = api();
+    let (response, result) = exchange(
+        http,
+        &clock,
+        Some(CLIENT),
+        &request("GET", "/?from=bookmark", "Accept-Encoding: gzip, deflate\r\n", ""),
+    );
+    assert_eq!(result, Ok(None));
+    let response = response.expect("a whole response");
+    assert_eq!(response.status, 200);
+    assert_eq!(response.header("content-type"), Some("text/html; charset=utf-8"));
+    assert_eq!(response.header("content-encoding"), Some("gzip"));
+    assert_eq!(response.header("cache-control"), Some("no-store"));
+    assert_eq!(response.header("connection"), Some("close"));
+    assert_eq!(response.body, page::PAGE, "the bytes in flash, as they are");
+    let html = page::tests::decompressed(&response.body);
+    assert!(html.starts_with("<!DOCTYPE html>") && html.contains("<title>"), "{html}");
+    let served = response.head.len() + 4 + response.body.len();
+    assert!(served <= page::MAX_PAGE_LEN, "{served} bytes served: over DEVICE.md's 24 KiB");
+
+    // A client that does not take gzip is told how to get the page.
+    for headers in ["", "Accept-Encoding: identity\r\n", "Accept-Encoding: deflate, br\r\n"] {
+        let response = send(http, &clock, "GET", "/", headers, "");
+        assert_eq!(response.status, 406, "{headers:?}");
+        assert_eq!(response.header("content-type"), Some("application/json"));
+        assert_eq!(response.header("content-encoding"), None);
+        assert_eq!(response.json(), json!({"errors": {"request": page::NOT_ACCEPTABLE}}));
+        assert!(page::NOT_ACCEPTABLE.contains("curl --compressed"));
+    }
+}
+
+#[test]
 fn the_settings_document_has_every_field_grouped_and_no_secret() {
     let clock = Clock::take();
     let http = api();
@@ -317,13 +351,15 @@ fn reboot_factory_reset_and_locate() {
 fn unknown_paths_are_404_and_wrong_methods_405() {
     let clock = Clock::take();
     let http = api();
-    for path in ["/", "/api/events", "/api/firmware", "/api/status/", "/api", "/index.html", "/api/STATUS"] {
+    for path in ["/api/events", "/api/firmware", "/api/status/", "/api", "/index.html", "/api/STATUS"] {
         let response = get(http, &clock, path);
         assert_eq!(response.status, 404, "{path}");
         assert_eq!(response.json(), json!({"errors": {"request": "no such resource"}}));
     }
     assert_eq!(get(http, &clock, "/api/status?x=1#y").status, 200, "a query is ignored");
     for (method, path, allow) in [
+        ("POST", "/", "GET"),
+        ("HEAD", "/", "GET"),
         ("POST", "/api/status", "GET"),
         ("DELETE", "/api/settings", "GET, PUT"),
         ("GET", "/api/password", "PUT"),

@@ -1,0 +1,202 @@
+//! The device's page (`GET /`) as a person sees it: Debian's chromium,
+//! driven by playwright-core (tests/browser/page.js), inside hal-sim's
+//! network namespace. The script checks each step in the browser and
+//! prints what it measured; this test checks that again, and the device
+//! behind it through the API, the control socket and curl. It keeps
+//! screenshots in target/artifacts/ (page.png, page-error.png with a
+//! refused setting, page-narrow.png at a phone's width, and
+//! page-failure.png when a step fails).
+//!
+//! Needs root (a namespace), node, chromium and `npm ci` in tests/browser
+//! (scripts/setup installs them); fails loudly without any of them.
+
+use std::io::Read;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+use system_tests::hal_sim::{HalSim, Reply, read_frame};
+use system_tests::netns::DEVICE_IP;
+use tokio::io::AsyncWriteExt;
+use tokio_modbus::prelude::*;
+
+/// Where Debian's chromium is (the script launches it by this path).
+const CHROMIUM: &str = "/usr/bin/chromium";
+/// The most the browser run may take (it takes about 10 s).
+const BROWSER_TIMEOUT: Duration = Duration::from_secs(120);
+/// How long a lamp may take to follow an input.
+const LAMP_LIMIT_MS: u64 = 1000;
+/// DEVICE.md section 2: the page as served.
+const MAX_PAGE_LEN: usize = 24 * 1024;
+
+fn browser_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("browser")
+}
+
+/// target/artifacts of this workspace (git-ignored).
+fn artifacts() -> PathBuf {
+    let target = match std::env::var_os("CARGO_TARGET_DIR") {
+        Some(dir) => PathBuf::from(dir),
+        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join("target"),
+    };
+    let dir = target.join("artifacts");
+    std::fs::create_dir_all(&dir).expect("target/artifacts");
+    dir
+}
+
+/// Fails loudly, saying what to install, unless node, chromium and
+/// playwright-core are there.
+fn require_browser() {
+    let node = Command::new("node").arg("--version").output();
+    assert!(
+        node.as_ref().is_ok_and(|o| o.status.success()),
+        "this test needs node (apt-get install nodejs npm; scripts/setup does it): {node:?}"
+    );
+    assert!(
+        Path::new(CHROMIUM).is_file(),
+        "this test needs {CHROMIUM} (apt-get install chromium; scripts/setup does it)"
+    );
+    let playwright = browser_dir().join("node_modules/playwright-core/package.json");
+    assert!(
+        playwright.is_file(),
+        "this test needs playwright-core in tests/browser/node_modules: run `npm ci` in tests/browser (scripts/setup does it)"
+    );
+}
+
+fn ok(reply: Reply) -> Value {
+    assert_eq!(reply.status, 200, "{}", reply.body);
+    reply.json()
+}
+
+/// Runs `command` to its end or kills it after `limit`: status, stdout, stderr.
+fn run_within(mut command: Command, limit: Duration) -> (bool, String, String) {
+    let mut child = command.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("the browser script starts");
+    let mut stdout = child.stdout.take().expect("stdout");
+    let mut stderr = child.stderr.take().expect("stderr");
+    let out = std::thread::spawn(move || {
+        let mut text = String::new();
+        let _ = stdout.read_to_string(&mut text);
+        text
+    });
+    let err = std::thread::spawn(move || {
+        let mut text = String::new();
+        let _ = stderr.read_to_string(&mut text);
+        text
+    });
+    let deadline = Instant::now() + limit;
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("the browser script can be waited on") {
+            break Some(status);
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let (stdout, mut stderr) = (out.join().unwrap_or_default(), err.join().unwrap_or_default());
+    if status.is_none() {
+        stderr.push_str(&format!("\n(killed after {limit:?})"));
+    }
+    (status.is_some_and(|s| s.success()), stdout, stderr)
+}
+
+#[test]
+fn the_page_shows_the_device_live_and_changes_it_through_the_api() {
+    require_browser();
+    let sim = HalSim::start(&["--robot", "idle"]);
+
+    // curl sees what a browser gets, and a client without gzip is told why not.
+    let head = sim.http("/", &["-H", "Accept-Encoding: gzip", "-D", "-", "-o", "/dev/null"]);
+    assert_eq!(head.status, 200, "{}", head.body);
+    let headers = head.body.to_ascii_lowercase();
+    assert!(headers.contains("content-type: text/html; charset=utf-8"), "{headers}");
+    assert!(headers.contains("content-encoding: gzip"), "{headers}");
+    let length: usize = headers
+        .lines()
+        .find_map(|l| l.strip_prefix("content-length:"))
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap_or_else(|| panic!("a Content-Length: {headers}"));
+    assert!(length <= MAX_PAGE_LEN, "{length} bytes served");
+    let page = sim.http("/", &["--compressed"]);
+    assert_eq!(page.status, 200);
+    assert!(page.body.starts_with("<!DOCTYPE html>") && page.body.trim_end().ends_with("</html>"), "{}", page.body);
+    let refused = sim.get("/");
+    assert_eq!(refused.status, 406, "{}", refused.body);
+    assert!(refused.json()["errors"]["request"].as_str().is_some_and(|m| m.contains("curl --compressed")));
+
+    // A Modbus master drives outputs, and stays connected while the page
+    // is open (the page lists it).
+    let master = sim.run(|| async {
+        let mut ctx = sim.connect().await;
+        let mut outputs = [false; 16];
+        for n in [1, 4, 16] {
+            outputs[n - 1] = true;
+        }
+        ctx.write_multiple_coils(16, &outputs).await.unwrap().unwrap();
+        // Tool outputs 1 and 3; AO1 8 mA (current), AO2 5 V (voltage).
+        ctx.write_single_register(22, 0b101).await.unwrap().unwrap();
+        ctx.write_multiple_registers(16, &[8000, 0, 5000, 1]).await.unwrap().unwrap();
+        let mut raw = sim.raw().await;
+        // FC 03, one register at 256 (the version), transaction 1, unit 0xFF.
+        raw.write_all(&[0, 1, 0, 0, 0, 6, 0xff, 3, 1, 0, 0, 1]).await.unwrap();
+        assert!(read_frame(&mut raw, Duration::from_secs(2)).await.is_some(), "a reply to the master");
+        raw.into_std().expect("the master's connection, kept open")
+    });
+    // The firmware version the page must show.
+    let [major, minor, patch] = system_tests::hal_sim::firmware_version();
+    let version = format!("{major}.{minor}.{patch}");
+    let before = ok(sim.get("/api/settings"));
+    assert_eq!(sim.control_ok("get locate"), "0");
+
+    let artifacts = artifacts();
+    for old in ["page.png", "page-error.png", "page-narrow.png", "page-failure.png"] {
+        let _ = std::fs::remove_file(artifacts.join(old));
+    }
+    let mut node = sim.ns().command("node");
+    node.current_dir(browser_dir())
+        .arg("page.js")
+        .arg(format!("http://{DEVICE_IP}/"))
+        .arg(sim.control_path())
+        .arg(&artifacts)
+        .arg(&version)
+        .stdin(Stdio::null());
+    let (passed, stdout, stderr) = run_within(node, BROWSER_TIMEOUT);
+    assert!(
+        passed,
+        "the page failed in the browser (screenshot: {}):\n{stderr}\n{stdout}",
+        artifacts.join("page-failure.png").display()
+    );
+    let summary: Value = stdout
+        .lines()
+        .rev()
+        .find_map(|line| serde_json::from_str(line).ok())
+        .unwrap_or_else(|| panic!("the script's summary: {stdout}"));
+    println!("browser: {summary}");
+
+    assert!(summary["title"].as_str().is_some_and(|t| t.contains("mbio-53494d")), "{summary}");
+    assert!(summary["model"].as_str().is_some_and(|m| m.contains(&format!("firmware {version}"))), "{summary}");
+    let lamps: Vec<u64> = summary["lamp_ms"].as_array().expect("lamp times").iter().filter_map(Value::as_u64).collect();
+    assert_eq!(lamps.len(), 3, "{summary}");
+    assert!(lamps.iter().all(|&ms| ms < LAMP_LIMIT_MS), "a lamp followed its input within 1 s: {lamps:?}");
+    assert_eq!(summary["field_error"], "any, or 1-247", "the error beside modbus.unit_id");
+    assert!(summary["refused"].as_str().is_some_and(|m| m.starts_with("401")), "{summary}");
+    assert_eq!(summary["page_errors"], serde_json::json!([]));
+
+    // The device behind the page: only the good change applied, the
+    // password set, and locate on.
+    let after = ok(sim.get("/api/settings"));
+    let mut expected = before.clone();
+    expected["modbus"]["unit_id"] = "7".into();
+    expected["admin"]["password_set"] = true.into();
+    assert_eq!(after, expected, "the page changed unit_id and the password, nothing else");
+    assert_eq!(sim.control_ok("get locate"), "1", "the locate button set hal-sim's flag");
+    drop(master);
+
+    for shot in ["page.png", "page-error.png", "page-narrow.png"] {
+        let png = std::fs::read(artifacts.join(shot)).unwrap_or_else(|e| panic!("{shot}: {e}"));
+        assert!(png.starts_with(b"\x89PNG\r\n\x1a\n") && png.len() > 10_000, "{shot} is a screenshot");
+    }
+}
