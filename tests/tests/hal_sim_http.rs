@@ -64,6 +64,18 @@ fn status_and_settings_have_their_shape() {
     assert_eq!(settings["admin"], json!({"password_set": false}));
     // Without --state the settings are in memory, and the log says so.
     assert!(sim.log().contains("kept in memory"), "{}", sim.log());
+
+    // The CPU load, measured by hal-sim's executor loop once a whole second has passed.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
+    let load = loop {
+        let status = ok(sim.get("/api/status"));
+        let load = status["device"]["cpu_load_percent"].clone();
+        if !load.is_null() || std::time::Instant::now() > deadline {
+            break load;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    };
+    assert!(load.as_u64().is_some_and(|percent| percent <= 100), "cpu_load_percent: {load}");
 }
 
 #[test]

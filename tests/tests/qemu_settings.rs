@@ -116,6 +116,17 @@ fn a_put_setting_applies_at_once_and_outlives_qemu() {
         let (status, body) = request(qemu.http_addr(), "GET", "/api/status", None);
         assert_eq!(status, 200, "{body}");
         assert!(body.contains(r#""storage":{"ok":true,"records":1,"#), "{body}");
+        // The CPU load, measured by the image's executor loop once a second has passed.
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
+        let load = loop {
+            let (_, body) = request(qemu.http_addr(), "GET", "/api/status", None);
+            let load = field(&body, "cpu_load_percent").to_owned();
+            if load != "null" || std::time::Instant::now() > deadline {
+                break load;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(200));
+        };
+        assert!(load.parse::<u8>().is_ok_and(|percent| percent <= 100), "cpu_load_percent: {load}");
     });
     let log = qemu.finish();
     assert!(log.contains("settings: 1 records; storage ok: true"), "{log}");

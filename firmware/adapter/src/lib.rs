@@ -23,6 +23,7 @@ pub mod device;
 #[cfg(feature = "http")]
 pub mod http;
 pub mod io;
+pub mod load;
 pub mod map;
 pub mod net;
 pub mod server;

@@ -2,14 +2,17 @@
 //!
 //! The stock cortex-m thread executor sleeps with `wfe`, which QEMU runs as a
 //! busy loop (a host core at 100 %). This one sleeps with `wfi` and keeps a
-//! host core at about 10 % when idle. A panic or a fault logs through defmt
+//! host core at about 10 % when idle, and reports each sleep to the CPU
+//! load meter (`adapter::load`). A panic or a fault logs through defmt
 //! and ends QEMU through semihosting with a non-zero exit code, so a test
 //! sees it both in the log and in QEMU's exit status.
 
 use core::sync::atomic::{AtomicBool, Ordering};
 
+use adapter::load::CPU_LOAD;
 use cortex_m_rt::{ExceptionFrame, exception};
 use embassy_executor::{Spawner, raw};
+use embassy_time::Instant;
 use static_cell::StaticCell;
 
 /// QEMU's exit code after a panic.
@@ -38,11 +41,18 @@ pub fn run(init: impl FnOnce(Spawner)) -> ! {
         unsafe { executor.poll() };
         // With interrupts masked, check for work and sleep: an interrupt that
         // arrives after the check still ends `wfi`, and runs right after.
-        cortex_m::interrupt::free(|_| {
-            if !WORK.load(Ordering::Acquire) {
+        let asleep = Instant::now();
+        let slept = cortex_m::interrupt::free(|_| {
+            let idle = !WORK.load(Ordering::Acquire);
+            if idle {
                 cortex_m::asm::wfi();
             }
+            idle
         });
+        if slept {
+            // The interrupt that woke the core has run: its time counts as asleep.
+            CPU_LOAD.slept(asleep, Instant::now());
+        }
     }
 }
 

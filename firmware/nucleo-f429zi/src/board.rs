@@ -103,6 +103,9 @@ pub struct Board {
     /// The user button was held at power-up ([`button`]): erase the settings first.
     #[cfg(feature = "http")]
     pub factory_reset: bool,
+    /// Why the MCU last reset.
+    #[cfg(feature = "http")]
+    pub reset: safety::ResetCause,
     /// The RNG, kept for the admin password's salts.
     #[cfg(feature = "http")]
     pub rng: Rng<'static, RNG>,
@@ -133,7 +136,7 @@ impl core::fmt::Debug for Tasks {
 pub fn init() -> Board {
     let p = embassy_stm32::init(clocks());
     let reset = safety::take_reset_cause();
-    defmt::info!("NUCLEO-F429ZI at {} MHz; last reset: {}", SYSCLK.0 / 1_000_000, reset);
+    defmt::info!("NUCLEO-F429ZI at {} MHz; last reset: {=str}", SYSCLK.0 / 1_000_000, reset.name());
 
     // From here on a stall (in the rest of bring-up, or of the executor) resets the MCU.
     let watchdog = safety::start_watchdog(p.IWDG);
@@ -254,6 +257,8 @@ pub fn init() -> Board {
         settings: flash::settings_flash(p.FLASH),
         #[cfg(feature = "http")]
         factory_reset,
+        #[cfg(feature = "http")]
+        reset,
         #[cfg(feature = "http")]
         rng,
     }

@@ -12,6 +12,7 @@
 //! | salt | 16 bytes from the hardware RNG, drawn when a password is set |
 //! | locate | LD2 (blue) blinks at 2 Hz instead of the traffic flashes ([`leds::locate`]) |
 //! | reboot | `SYSRESETREQ` (`SCB::sys_reset`) |
+//! | reset reason | RCC_CSR's flags, read at boot ([`crate::safety::take_reset_cause`]) |
 
 use core::cell::RefCell;
 
@@ -29,6 +30,7 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_time::Duration;
 use static_cell::StaticCell;
 
+use crate::safety::ResetCause;
 use crate::{SETTINGS, flash, leds};
 
 /// The API's backend on this board.
@@ -77,6 +79,7 @@ pub struct Nucleo {
     stack: Stack<'static>,
     mac: [u8; 6],
     mode: NetMode,
+    reset: ResetCause,
     rng: Mutex<CriticalSectionRawMutex, RefCell<Rng<'static, RNG>>>,
 }
 
@@ -87,9 +90,16 @@ impl core::fmt::Debug for Nucleo {
 }
 
 impl Nucleo {
-    /// The platform of `stack`, started with `settings`, on the MAC `mac`, drawing salts from `rng`.
-    pub fn new(stack: Stack<'static>, mac: [u8; 6], settings: &Settings, rng: Rng<'static, RNG>) -> Self {
-        Self { stack, mac, mode: settings.network.mode, rng: Mutex::new(RefCell::new(rng)) }
+    /// The platform of `stack`, started with `settings` after a `reset`, on
+    /// the MAC `mac`, drawing salts from `rng`.
+    pub fn new(
+        stack: Stack<'static>,
+        mac: [u8; 6],
+        settings: &Settings,
+        reset: ResetCause,
+        rng: Rng<'static, RNG>,
+    ) -> Self {
+        Self { stack, mac, mode: settings.network.mode, reset, rng: Mutex::new(RefCell::new(rng)) }
     }
 }
 
@@ -113,6 +123,10 @@ impl Platform for Nucleo {
 
     fn locate(&self, duration: Duration) {
         leds::locate(duration);
+    }
+
+    fn reset_reason(&self) -> Option<&'static str> {
+        Some(self.reset.name())
     }
 
     fn salt(&self) -> [u8; 16] {

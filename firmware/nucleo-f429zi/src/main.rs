@@ -19,6 +19,7 @@ mod http;
 mod leds;
 mod net;
 mod pins;
+mod runtime;
 mod safety;
 
 use adapter::device::{self, Device};
@@ -55,8 +56,14 @@ const fn robot() -> BoardRobot {
     return sim_robot::SimRobot::new(sim_robot::Mode::Demo);
 }
 
-#[embassy_executor::main]
-async fn main(spawner: Spawner) {
+#[cortex_m_rt::entry]
+fn main() -> ! {
+    runtime::run(|spawner| spawner.spawn(unwrap!(start(spawner))))
+}
+
+/// Brings the board up, loads the settings and starts every task.
+#[embassy_executor::task]
+async fn start(spawner: Spawner) {
     let board = board::init();
 
     // The settings in force: the saved ones (the factory settings when none
@@ -99,7 +106,7 @@ async fn main(spawner: Spawner) {
     spawner.spawn(unwrap!(refresh_task(device, board.inputs)));
     #[cfg(feature = "http")]
     {
-        let platform = http::Nucleo::new(stack, board.mac, settings, board.rng);
+        let platform = http::Nucleo::new(stack, board.mac, settings, board.reset, board.rng);
         let api = http::api(server, platform, store, &loaded);
         for _ in 0..adapter::http::MAX_HTTP_CONNECTIONS {
             spawner.spawn(unwrap!(http_task(stack, api)));

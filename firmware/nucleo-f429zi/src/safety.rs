@@ -44,6 +44,21 @@ pub enum ResetCause {
     Unknown,
 }
 
+impl ResetCause {
+    /// As `/api/status` names it (`device.reset_reason`).
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Watchdog => "watchdog",
+            Self::WindowWatchdog => "window-watchdog",
+            Self::Software => "software",
+            Self::PowerOn => "power-on",
+            Self::Pin => "reset-pin",
+            Self::LowPower => "low-power",
+            Self::Unknown => "unknown",
+        }
+    }
+}
+
 /// Reads and clears the reset flags. Checked in order of specificity: any
 /// internal reset also pulls NRST, so the pin flag comes last.
 pub fn take_reset_cause() -> ResetCause {

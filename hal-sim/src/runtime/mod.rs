@@ -69,7 +69,9 @@ impl Executor {
             let alarm = time::expire();
             let busy = signal.sleep();
             if !busy {
+                let asleep = embassy_time::Instant::now();
                 sleep.wait(Some(time::until(alarm)).filter(|_| alarm != u64::MAX));
+                adapter::load::CPU_LOAD.slept(asleep, embassy_time::Instant::now());
                 busy_rounds = 0;
             } else if busy_rounds >= MAX_BUSY_ROUNDS {
                 sleep.wait(Some(0));

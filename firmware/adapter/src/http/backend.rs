@@ -138,13 +138,14 @@ pub trait Backend {
         super::HTTP_PORT
     }
 
+    /// The executor's busy share over the last second (DEVICE.md section 6):
+    /// what the program's executor loop reported to [`crate::load::CPU_LOAD`].
+    fn cpu_load_percent(&self) -> Option<u8> {
+        crate::load::CPU_LOAD.percent()
+    }
+
     // Hooks for what the adapter does not measure or have yet: each
     // reports `null` in `/api/status` until a board implements it.
-
-    /// The executor's busy share over the last second (DEVICE.md section 6). Hook: `None`.
-    fn cpu_load_percent(&self) -> Option<u8> {
-        None
-    }
 
     /// Why the device last reset (`power-on`, `watchdog`, ...). Hook: `None`.
     fn reset_reason(&self) -> Option<&'static str> {

@@ -38,6 +38,10 @@ pub trait Platform {
     fn http_port(&self) -> u16 {
         super::HTTP_PORT
     }
+    /// Why the device last reset, where the chip says (`power-on`, `watchdog`, ...).
+    fn reset_reason(&self) -> Option<&'static str> {
+        None
+    }
     /// Where the robot's points come from.
     fn robot_source(&self) -> RobotSource {
         RobotSource::None
@@ -161,6 +165,10 @@ impl<F: NorFlash, P: Platform> Backend for Controller<'_, F, P> {
 
     fn http_port(&self) -> u16 {
         self.platform.http_port()
+    }
+
+    fn reset_reason(&self) -> Option<&'static str> {
+        self.platform.reset_reason()
     }
 
     fn network(&self) -> NetworkStatus {

@@ -53,7 +53,10 @@ fn the_status_document_shows_the_device() {
     assert_eq!(device["firmware"], "0.1.0");
     assert_eq!(device["uptime_s"], 3);
     assert_eq!(device["mac"], "02:4d:42:53:49:4d");
-    assert!(device["cpu_load_percent"].is_null() && device["reset_reason"].is_null(), "hooks not implemented");
+    assert!(
+        device["cpu_load_percent"].is_null() && device["reset_reason"].is_null(),
+        "no executor loop measures the load here; no reset reason"
+    );
     assert_eq!(status["network"], json!({"mode": "static", "address": "10.0.0.1/24", "gateway": null, "link": true}));
     let io = &status["io"];
     assert_eq!((io["di"].as_u64(), io["do"].as_u64()), (Some(0b101), Some(0x8001)));
