@@ -125,7 +125,8 @@ fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>, fl
     store.flash().start_timing();
     let settings: &'static Settings = Box::leak(Box::new(running_settings(&loaded.settings, &options)));
 
-    let net_config = adapter::net::initial_config(&settings.network);
+    let name = settings.device.name.or_default(MAC);
+    let net_config = adapter::net::initial_config(&settings.network, &name);
     let resources = Box::leak(Box::new(StackResources::<NET_SOCKETS>::new()));
     let (stack, runner) = embassy_net::new(device, net_config, resources, RandomState::new().build_hasher().finish());
 
@@ -195,7 +196,7 @@ fn start(
 ) -> Result<(), embassy_executor::SpawnError> {
     let Sim { stack, board, server, controller, api, settings, options } = sim;
     spawner.spawn(net_task(runner)?);
-    spawner.spawn(link_task(stack, server, settings)?);
+    spawner.spawn(link_task(stack, server, settings, controller)?);
     spawner.spawn(refresh_task(board)?);
     for slot in 0..SOCKET_POOL {
         spawner.spawn(modbus_task(stack, server, slot)?);
@@ -230,10 +231,16 @@ async fn http_task(stack: Stack<'static>, api: &'static Api, port: u16) -> ! {
     http::listen(stack, api, port).await
 }
 
-/// Follows the TAP's link with the boards' network policy.
+/// Follows the TAP's link with the boards' network policy; DHCP's hostname
+/// is the name in the settings, as the HTTP API changes them.
 #[embassy_executor::task]
-async fn link_task(stack: Stack<'static>, server: &'static ModbusServer, settings: &'static Settings) -> ! {
-    adapter::net::run(stack, &settings.network, server).await
+async fn link_task(
+    stack: Stack<'static>,
+    server: &'static ModbusServer,
+    settings: &'static Settings,
+    names: &'static SimController,
+) -> ! {
+    adapter::net::run(stack, &settings.network, server, names).await
 }
 
 #[embassy_executor::task]

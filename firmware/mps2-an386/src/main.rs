@@ -12,7 +12,10 @@
 #![no_main]
 
 use adapter::device::{self, Device};
+use adapter::net::DeviceName;
 use adapter::server::{self, SOCKET_POOL, Server, SlotId};
+#[cfg(not(feature = "http"))]
+use adapter::settings::Name;
 use adapter::settings::{Cidr, NetMode, NetworkSettings, Settings};
 #[cfg(feature = "http")]
 use adapter::{http::Controller, storage::Store};
@@ -57,9 +60,12 @@ const _: () = assert!(SETTINGS.modbus.port != adapter::http::HTTP_PORT, "MODBUS_
 /// The Modbus server over the device.
 type ModbusServer = Server<'static, Device<'static>>;
 
-/// The HTTP API over the settings store and this board.
+/// The settings, the store and the password over this board.
 #[cfg(feature = "http")]
-type Api = adapter::http::Http<'static, Controller<'static, platform::SettingsFlash, platform::Mps2>>;
+type Backend = Controller<'static, platform::SettingsFlash, platform::Mps2>;
+/// The HTTP API over them.
+#[cfg(feature = "http")]
+type Api = adapter::http::Http<'static, Backend>;
 
 static LEDS: Leds = Leds;
 
@@ -92,7 +98,8 @@ fn main() -> ! {
     // sequence numbers and ports between boards, so the MAC will do.
     let [a, b, c, d, e, f] = mac;
     let seed = u64::from_le_bytes([a, b, c, d, e, f, 0x4d, 0x42]);
-    let config = adapter::net::initial_config(&settings.network);
+    let name = settings.device.name.or_default(mac);
+    let config = adapter::net::initial_config(&settings.network, &name);
     let (stack, runner) = embassy_net::new(ethernet, config, RESOURCES.init(StackResources::new()), seed);
 
     static DEVICE: StaticCell<Device<'static>> = StaticCell::new();
@@ -102,25 +109,31 @@ fn main() -> ! {
     let server: &'static ModbusServer = SERVER.init(Server::new(settings.server_config(), device));
 
     #[cfg(feature = "http")]
-    let api: &'static Api = {
+    let (api, names): (&'static Api, &'static dyn DeviceName) = {
         let platform = platform::Mps2::new(stack, mac, settings.network.mode);
-        static CONTROLLER: StaticCell<Controller<'static, platform::SettingsFlash, platform::Mps2>> = StaticCell::new();
-        let controller = CONTROLLER.init(Controller::new(server, platform, store, &loaded));
+        static CONTROLLER: StaticCell<Backend> = StaticCell::new();
+        let controller: &'static Backend = CONTROLLER.init(Controller::new(server, platform, store, &loaded));
         static API: StaticCell<Api> = StaticCell::new();
-        API.init(adapter::http::Http::new(controller))
+        (API.init(adapter::http::Http::new(controller)), controller)
+    };
+    // Without the settings store the name never changes.
+    #[cfg(not(feature = "http"))]
+    let names: &'static dyn DeviceName = {
+        static NAME: StaticCell<Name> = StaticCell::new();
+        NAME.init(name)
     };
 
     runtime::run(|spawner| {
-        let spawned = spawn_all(
-            spawner,
+        let shared = Shared {
             stack,
-            runner,
-            &settings.network,
+            settings,
+            names,
             device,
             server,
             #[cfg(feature = "http")]
             api,
-        );
+        };
+        let spawned = spawn_all(spawner, runner, shared);
         if let Err(e) = spawned {
             fail("spawn", e)
         }
@@ -147,17 +160,31 @@ fn load_settings() -> (Store<platform::SettingsFlash>, adapter::storage::Loaded)
     (store, loaded)
 }
 
-fn spawn_all(
-    spawner: Spawner,
+/// What the tasks share, all of it for the life of the program.
+#[derive(Clone, Copy)]
+struct Shared {
     stack: Stack<'static>,
-    runner: Runner<'static, Lan9118<Mmio>>,
-    network: &'static NetworkSettings,
+    /// The settings in force at start.
+    settings: &'static Settings,
+    /// The device name in force (the API may change it).
+    names: &'static dyn DeviceName,
     device: &'static Device<'static>,
     server: &'static ModbusServer,
-    #[cfg(feature = "http")] api: &'static Api,
+    #[cfg(feature = "http")]
+    api: &'static Api,
+}
+
+fn spawn_all(
+    spawner: Spawner,
+    runner: Runner<'static, Lan9118<Mmio>>,
+    shared: Shared,
 ) -> Result<(), embassy_executor::SpawnError> {
+    #[cfg(feature = "http")]
+    let Shared { stack, settings, names, device, server, api } = shared;
+    #[cfg(not(feature = "http"))]
+    let Shared { stack, settings, names, device, server } = shared;
     spawner.spawn(net_task(runner)?);
-    spawner.spawn(link_task(stack, network, server)?);
+    spawner.spawn(link_task(stack, &settings.network, server, names)?);
     spawner.spawn(refresh_task(device)?);
     for slot in 0..SOCKET_POOL {
         spawner.spawn(modbus_task(stack, server, slot)?);
@@ -183,10 +210,15 @@ async fn net_task(mut runner: Runner<'static, Lan9118<Mmio>>) -> ! {
     runner.run().await
 }
 
-/// Follows the link with the adapter's network policy.
+/// Follows the link with the adapter's network policy (DHCP's hostname: the name in force).
 #[embassy_executor::task]
-async fn link_task(stack: Stack<'static>, network: &'static NetworkSettings, server: &'static ModbusServer) -> ! {
-    adapter::net::run(stack, network, server).await
+async fn link_task(
+    stack: Stack<'static>,
+    network: &'static NetworkSettings,
+    server: &'static ModbusServer,
+    names: &'static dyn DeviceName,
+) -> ! {
+    adapter::net::run(stack, network, server, names).await
 }
 
 #[embassy_executor::task]

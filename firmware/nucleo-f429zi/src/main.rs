@@ -22,7 +22,10 @@ mod pins;
 mod safety;
 
 use adapter::device::{self, Device};
+use adapter::net::DeviceName;
 use adapter::server::{self, SOCKET_POOL, Server, SlotId};
+#[cfg(not(feature = "http"))]
+use adapter::settings::Name;
 use adapter::settings::Settings;
 use defmt::unwrap;
 use defmt_rtt as _;
@@ -78,29 +81,40 @@ async fn main(spawner: Spawner) {
     static SERVER: StaticCell<ModbusServer> = StaticCell::new();
     let server = &*SERVER.init(Server::new(settings.server_config(), device));
 
-    let config = adapter::net::initial_config(&settings.network);
+    let name = settings.device.name.or_default(board.mac);
+    let config = adapter::net::initial_config(&settings.network, &name);
     let (stack, runner) = embassy_net::new(board.ethernet, config, net::resources(), board.seed);
+
+    // The name in force: the settings' (the API may change it), or without
+    // the store the factory name, fixed.
+    #[cfg(feature = "http")]
+    let api = http::api(server, http::Nucleo::new(stack, board.mac, settings, board.rng), store, &loaded);
+    #[cfg(feature = "http")]
+    let names: &'static dyn DeviceName = api.backend();
+    #[cfg(not(feature = "http"))]
+    let names: &'static dyn DeviceName = {
+        static NAME: StaticCell<Name> = StaticCell::new();
+        NAME.init(name)
+    };
 
     // Every task pool is sized for exactly these spawns; a failure is a build
     // mistake, and its panic ends in the fault handler (outputs off, reset).
-    unwrap!(board::spawn(
-        spawner,
-        board.tasks,
-        runner,
+    unwrap!(board::spawn(spawner, board.tasks, runner, stack, device, server));
+    // The link supervisor, on the settings in force (without the `http`
+    // feature the factory settings, a constant: 40 bytes less).
+    spawner.spawn(unwrap!(net::link_task(
         stack,
         #[cfg(feature = "http")]
         &settings.network,
-        device,
-        server
-    ));
+        server,
+        names
+    )));
     for slot in 0..SOCKET_POOL {
         spawner.spawn(unwrap!(modbus_task(stack, server, slot)));
     }
     spawner.spawn(unwrap!(refresh_task(device, board.inputs)));
     #[cfg(feature = "http")]
     {
-        let platform = http::Nucleo::new(stack, board.mac, settings, board.rng);
-        let api = http::api(server, platform, store, &loaded);
         for _ in 0..adapter::http::MAX_HTTP_CONNECTIONS {
             spawner.spawn(unwrap!(http_task(stack, api)));
         }

@@ -47,14 +47,17 @@ pub async fn runner_task(mut runner: Runner) -> ! {
     runner.run().await
 }
 
-/// Follows the link with `network` (the settings in force): the address on each link-up, closed sessions on each link loss.
+/// Follows the link with `network` (the settings in force): the address on
+/// each link-up (DHCP with the name `names` gives then), closed sessions on
+/// each link loss.
 #[embassy_executor::task]
 pub async fn link_task(
     stack: Stack<'static>,
     #[cfg(feature = "http")] network: &'static NetworkSettings,
     server: &'static ModbusServer,
+    names: &'static dyn adapter::net::DeviceName,
 ) -> ! {
     #[cfg(not(feature = "http"))]
     let network = &crate::SETTINGS.network;
-    adapter::net::run(stack, network, server).await
+    adapter::net::run(stack, network, server, names).await
 }
