@@ -18,6 +18,7 @@ use std::process::ExitCode;
 
 use adapter::device::{self, Device};
 use adapter::http::{self, Http, MAX_HTTP_CONNECTIONS};
+use adapter::mdns;
 use adapter::server::{self, SOCKET_POOL, Server, SlotId};
 use adapter::settings::Settings;
 use adapter::storage::Store;
@@ -37,8 +38,8 @@ type ModbusServer = Server<'static, Device<'static>>;
 /// The HTTP API over hal-sim's backend.
 type Api = Http<'static, SimController>;
 
-/// Sockets in the stack: the Modbus listeners, DHCP's, and the HTTP listeners.
-const NET_SOCKETS: usize = SOCKET_POOL + 1 + MAX_HTTP_CONNECTIONS;
+/// Sockets in the stack: the Modbus listeners, DHCP's, the HTTP listeners and mDNS's.
+const NET_SOCKETS: usize = SOCKET_POOL + 1 + MAX_HTTP_CONNECTIONS + 1;
 
 /// Exit status for a command line hal-sim cannot run with.
 const EXIT_USAGE: u8 = 2;
@@ -210,6 +211,13 @@ fn start(
         spawner.spawn(control::accept_task(spawner, listener, board, controller)?);
     }
     spawner.spawn(platform::reboot_task(args)?);
+    let services = mdns::Services {
+        model: platform::MODEL,
+        version: adapter::VERSION,
+        modbus_port: server.config().port,
+        http_port: options.http_port,
+    };
+    spawner.spawn(mdns_task(stack, controller, services)?);
     spawner.spawn(ready_task(stack, server, options)?);
     Ok(())
 }
@@ -229,6 +237,12 @@ async fn modbus_task(stack: Stack<'static>, server: &'static ModbusServer, slot:
 #[embassy_executor::task(pool_size = MAX_HTTP_CONNECTIONS)]
 async fn http_task(stack: Stack<'static>, api: &'static Api, port: u16) -> ! {
     http::listen(stack, api, port).await
+}
+
+/// Answers mDNS queries for the name in force and the services (DEVICE.md section 3).
+#[embassy_executor::task]
+async fn mdns_task(stack: Stack<'static>, names: &'static SimController, services: mdns::Services) -> ! {
+    mdns::run(stack, names, services).await
 }
 
 /// Follows the TAP's link with the boards' network policy; DHCP's hostname

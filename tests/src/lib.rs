@@ -4,6 +4,7 @@
 pub mod abuse;
 pub mod dhcp;
 pub mod hal_sim;
+pub mod mdns;
 pub mod netns;
 pub mod qemu;
 

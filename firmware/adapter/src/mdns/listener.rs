@@ -16,12 +16,17 @@ use crate::net::DeviceName;
 /// long known-answer list on a busy network (the device does not read
 /// known answers) or another responder's announcement.
 pub const SOCKET_RX_LEN: usize = 512;
-/// Transmit buffer: one response at a time.
-pub const SOCKET_TX_LEN: usize = responder::MAX_RESPONSE_LEN;
+/// Transmit buffer: room for two of the largest responses. A response is
+/// written straight into it (smoltcp's `send_with`), which, unlike a copy,
+/// does not rewind an empty ring to its start: where the last response
+/// ended, a ring of two responses' size still has one's room on one side
+/// or the other; a ring of one would wait for room forever.
+pub const SOCKET_TX_LEN: usize = 2 * responder::MAX_RESPONSE_LEN;
 /// Datagrams waiting to be read.
 pub const RX_PACKETS: usize = 4;
-/// Datagrams waiting to be sent.
-pub const TX_PACKETS: usize = 1;
+/// Datagrams waiting to be sent: one response, and the padding entry that
+/// takes the ring round to its start.
+pub const TX_PACKETS: usize = 2;
 /// Unsolicited announcements at start and after a change (RFC 6762 section
 /// 8.3: at least two), [`ANNOUNCE_INTERVAL`] apart.
 pub const ANNOUNCEMENTS: u8 = 2;
