@@ -24,6 +24,9 @@ fn instance(instances: &[Value], name: &str, service: &str, port: u16) {
 #[test]
 fn the_name_resolves_and_both_services_are_found_with_their_ports_and_text() {
     let sim = HalSim::start(&["--robot", "idle"]);
+    // Past the two announcements (at start and a second later): every
+    // answer below answers a query.
+    std::thread::sleep(std::time::Duration::from_millis(2500));
     assert_eq!(resolve(sim.ns(), "mbio-53494d.local.", 5), [DEVICE_IP]);
     instance(&browse(sim.ns(), "_modbus._tcp.local.", 5), "mbio-53494d", "_modbus._tcp.local.", 502);
     instance(&browse(sim.ns(), "_http._tcp.local.", 5), "mbio-53494d", "_http._tcp.local.", 80);

@@ -2,7 +2,8 @@
 //! embassy-net, the Modbus listeners, the 100 ms refresh with no robot, and
 //! digital outputs 1 and 2 on the FPGA user LEDs; with the `http` feature
 //! (on by default) the settings saved in the PSRAM region and the HTTP API
-//! on port 80 ([`platform`]).
+//! on port 80 ([`platform`]); with the `mdns` feature (on by default) the
+//! mDNS responder (`NAME.local`, `_modbus._tcp`, `_http._tcp`).
 //!
 //! Address: the adapter's network policy with the settings in force (the
 //! saved ones, or this board's factory settings [`SETTINGS`]): DHCP (slirp
@@ -33,12 +34,19 @@ use board::{Leds, Mmio, RamInputs};
 use lan9118::Lan9118;
 use static_cell::StaticCell;
 
-/// Sockets the stack holds: the Modbus listeners, DHCP's, and the HTTP listeners.
-const SOCKETS: usize = SOCKET_POOL + 1 + HTTP_SOCKETS;
+/// Sockets the stack holds: the Modbus listeners, DHCP's, the HTTP listeners and mDNS's.
+const SOCKETS: usize = SOCKET_POOL + 1 + HTTP_SOCKETS + MDNS_SOCKETS;
 #[cfg(feature = "http")]
 const HTTP_SOCKETS: usize = adapter::http::MAX_HTTP_CONNECTIONS;
 #[cfg(not(feature = "http"))]
 const HTTP_SOCKETS: usize = 0;
+#[cfg(feature = "mdns")]
+const MDNS_SOCKETS: usize = 1;
+#[cfg(not(feature = "mdns"))]
+const MDNS_SOCKETS: usize = 0;
+
+/// The board, as `/api/status` and mDNS's TXT name it.
+pub const MODEL: &str = "mps2-an386";
 
 /// The factory settings: DHCP with the test bench's address as the
 /// fallback after 5 s, then the build's variables (a bad value stops the build).
@@ -79,6 +87,15 @@ fn main() -> ! {
     };
     let mac = ethernet.mac();
     defmt::info!("LAN9118 up, MAC {=[u8]:02x}", mac);
+    // The mDNS group through the MAC's hash filter (other multicast stays out).
+    #[cfg(feature = "mdns")]
+    let ethernet = {
+        let mut ethernet = ethernet;
+        if let Err(e) = ethernet.accept_multicast(&[lan9118::ipv4_multicast_mac(adapter::mdns::GROUP)]) {
+            fail("LAN9118 multicast filter", e)
+        }
+        ethernet
+    };
 
     // The settings in force: the saved ones (the factory settings when
     // none are saved or they cannot be taken whole), or without the
@@ -185,6 +202,20 @@ fn spawn_all(
     let Shared { stack, settings, names, device, server } = shared;
     spawner.spawn(net_task(runner)?);
     spawner.spawn(link_task(stack, &settings.network, server, names)?);
+    #[cfg(feature = "mdns")]
+    {
+        #[cfg(feature = "http")]
+        let http_port = Some(adapter::http::HTTP_PORT);
+        #[cfg(not(feature = "http"))]
+        let http_port = None;
+        let services = adapter::mdns::Services {
+            model: MODEL,
+            version: adapter::VERSION,
+            modbus_port: server.config().port,
+            http_port,
+        };
+        spawner.spawn(mdns_task(stack, names, services)?);
+    }
     spawner.spawn(refresh_task(device)?);
     for slot in 0..SOCKET_POOL {
         spawner.spawn(modbus_task(stack, server, slot)?);
@@ -219,6 +250,13 @@ async fn link_task(
     names: &'static dyn DeviceName,
 ) -> ! {
     adapter::net::run(stack, network, server, names).await
+}
+
+/// Answers mDNS queries for the name in force and the services.
+#[cfg(feature = "mdns")]
+#[embassy_executor::task]
+async fn mdns_task(stack: Stack<'static>, names: &'static dyn DeviceName, services: adapter::mdns::Services) -> ! {
+    adapter::mdns::run(stack, names, services).await
 }
 
 #[embassy_executor::task]

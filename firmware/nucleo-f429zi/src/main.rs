@@ -1,6 +1,7 @@
 //! The NUCLEO-F429ZI image: Modbus TCP on port 502 over the board's Ethernet,
 //! and with the `http` feature (on by default) the settings saved in flash
-//! and the HTTP API on port 80 ([`http`]).
+//! and the HTTP API on port 80 ([`http`]); with `mdns` (off by default: over
+//! the budget today) the mDNS responder.
 //!
 //! Build and flash: `cargo nucleo` (see `docs/nucleo-f429zi.md`). The
 //! factory settings are the defaults of `adapter::settings`, changed by the
@@ -41,6 +42,9 @@ pub const SETTINGS: Settings = Settings::DEFAULT.with_build_env();
 // `MODBUS_PORT` may not take the API's port (the API refuses it at run time).
 #[cfg(feature = "http")]
 const _: () = assert!(SETTINGS.modbus.port != adapter::http::HTTP_PORT, "MODBUS_PORT must not be the HTTP port");
+
+/// The board, as `/api/status` and mDNS's TXT name it.
+pub const MODEL: &str = "nucleo-f429zi";
 
 /// The Modbus server over the device.
 pub type ModbusServer = Server<'static, Device<'static>>;
@@ -120,6 +124,20 @@ async fn main(spawner: Spawner) {
         }
         defmt::info!("HTTP API on port {}", adapter::http::HTTP_PORT);
     }
+    #[cfg(feature = "mdns")]
+    {
+        #[cfg(feature = "http")]
+        let http_port = Some(adapter::http::HTTP_PORT);
+        #[cfg(not(feature = "http"))]
+        let http_port = None;
+        let services = adapter::mdns::Services {
+            model: MODEL,
+            version: adapter::VERSION,
+            modbus_port: server.config().port,
+            http_port,
+        };
+        spawner.spawn(unwrap!(mdns_task(stack, names, services)));
+    }
     let config = server.config();
     defmt::info!("serving Modbus TCP on port {}, {} sessions", config.port, config.max_connections);
 }
@@ -129,6 +147,13 @@ async fn main(spawner: Spawner) {
 async fn refresh_task(device: &'static Device<'static>, mut inputs: pins::Inputs) -> ! {
     let mut robot = robot();
     device::refresh_loop(device, &mut inputs, &mut robot).await
+}
+
+/// Answers mDNS queries for the name in force and the services.
+#[cfg(feature = "mdns")]
+#[embassy_executor::task]
+async fn mdns_task(stack: Stack<'static>, names: &'static dyn DeviceName, services: adapter::mdns::Services) -> ! {
+    adapter::mdns::run(stack, names, services).await
 }
 
 /// One Modbus listener per socket; its buffers live in the task's static storage.

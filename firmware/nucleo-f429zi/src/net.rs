@@ -22,12 +22,16 @@ pub const RX_PACKETS: usize = 4;
 /// Frames the stack can queue for the MAC (1514 bytes each).
 pub const TX_PACKETS: usize = 4;
 /// Sockets in the stack: the Modbus listeners and DHCP's (and the HTTP
-/// listeners with the `http` feature).
-pub const NET_SOCKETS: usize = SOCKET_POOL + 1 + HTTP_SOCKETS;
+/// listeners with the `http` feature, mDNS's with `mdns`).
+pub const NET_SOCKETS: usize = SOCKET_POOL + 1 + HTTP_SOCKETS + MDNS_SOCKETS;
 #[cfg(feature = "http")]
 const HTTP_SOCKETS: usize = adapter::http::MAX_HTTP_CONNECTIONS;
 #[cfg(not(feature = "http"))]
 const HTTP_SOCKETS: usize = 0;
+#[cfg(feature = "mdns")]
+const MDNS_SOCKETS: usize = 1;
+#[cfg(not(feature = "mdns"))]
+const MDNS_SOCKETS: usize = 0;
 
 /// The DMA descriptors and frame buffers (in SRAM: the MAC's DMA cannot reach CCM RAM).
 pub fn packets() -> &'static mut PacketQueue<TX_PACKETS, RX_PACKETS> {
