@@ -2,7 +2,7 @@
 //! connection for a session, and the checks every reply must pass.
 //!
 //! Each target is a few lines around one function here ([`session`],
-//! [`handler`], [`codec`], [`store`], [`http`]), so the same checks also run as
+//! [`handler`], [`codec`], [`store`], [`http`], [`mdns`]), so the same checks also run as
 //! plain tests over the seed inputs (`cargo test` in this workspace).
 //!
 //! The checks are those of the library's session property test
@@ -17,6 +17,7 @@ pub mod check;
 pub mod connection;
 mod http;
 pub mod input;
+pub mod mdns;
 pub mod storage;
 
 use core::pin::pin;
@@ -34,6 +35,7 @@ use test_support::reply::Answer;
 use check::Pins;
 pub use http::http;
 pub use input::{HandlerInput, HttpInput, SessionInput};
+pub use mdns::{MdnsInput, mdns};
 pub use storage::{StoreInput, record, store};
 
 /// The server's configuration as the tests set it: no idle timeout (the mock

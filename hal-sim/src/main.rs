@@ -18,6 +18,7 @@ use std::process::ExitCode;
 
 use adapter::device::{self, Device};
 use adapter::http::{self, Http, MAX_HTTP_CONNECTIONS};
+use adapter::mdns;
 use adapter::server::{self, SOCKET_POOL, Server, SlotId};
 use adapter::settings::Settings;
 use adapter::storage::Store;
@@ -37,8 +38,8 @@ type ModbusServer = Server<'static, Device<'static>>;
 /// The HTTP API over hal-sim's backend.
 type Api = Http<'static, SimController>;
 
-/// Sockets in the stack: the Modbus listeners, DHCP's, and the HTTP listeners.
-const NET_SOCKETS: usize = SOCKET_POOL + 1 + MAX_HTTP_CONNECTIONS;
+/// Sockets in the stack: the Modbus listeners, DHCP's, the HTTP listeners and mDNS's.
+const NET_SOCKETS: usize = SOCKET_POOL + 1 + MAX_HTTP_CONNECTIONS + 1;
 
 /// Exit status for a command line hal-sim cannot run with.
 const EXIT_USAGE: u8 = 2;
@@ -125,7 +126,8 @@ fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>, fl
     store.flash().start_timing();
     let settings: &'static Settings = Box::leak(Box::new(running_settings(&loaded.settings, &options)));
 
-    let net_config = adapter::net::initial_config(&settings.network);
+    let name = settings.device.name.or_default(MAC);
+    let net_config = adapter::net::initial_config(&settings.network, &name);
     let resources = Box::leak(Box::new(StackResources::<NET_SOCKETS>::new()));
     let (stack, runner) = embassy_net::new(device, net_config, resources, RandomState::new().build_hasher().finish());
 
@@ -195,7 +197,7 @@ fn start(
 ) -> Result<(), embassy_executor::SpawnError> {
     let Sim { stack, board, server, controller, api, settings, options } = sim;
     spawner.spawn(net_task(runner)?);
-    spawner.spawn(link_task(stack, server, settings)?);
+    spawner.spawn(link_task(stack, server, settings, controller)?);
     spawner.spawn(refresh_task(board)?);
     for slot in 0..SOCKET_POOL {
         spawner.spawn(modbus_task(stack, server, slot)?);
@@ -209,6 +211,13 @@ fn start(
         spawner.spawn(control::accept_task(spawner, listener, board, controller)?);
     }
     spawner.spawn(platform::reboot_task(args)?);
+    let services = mdns::Services {
+        model: platform::MODEL,
+        version: adapter::VERSION,
+        modbus_port: server.config().port,
+        http_port: options.http_port,
+    };
+    spawner.spawn(mdns_task(stack, controller, services)?);
     spawner.spawn(ready_task(stack, server, options)?);
     Ok(())
 }
@@ -230,10 +239,22 @@ async fn http_task(stack: Stack<'static>, api: &'static Api, port: u16) -> ! {
     http::listen(stack, api, port).await
 }
 
-/// Follows the TAP's link with the boards' network policy.
+/// Answers mDNS queries for the name in force and the services (DEVICE.md section 3).
 #[embassy_executor::task]
-async fn link_task(stack: Stack<'static>, server: &'static ModbusServer, settings: &'static Settings) -> ! {
-    adapter::net::run(stack, &settings.network, server).await
+async fn mdns_task(stack: Stack<'static>, names: &'static SimController, services: mdns::Services) -> ! {
+    mdns::run(stack, names, services).await
+}
+
+/// Follows the TAP's link with the boards' network policy; DHCP's hostname
+/// is the name in the settings, as the HTTP API changes them.
+#[embassy_executor::task]
+async fn link_task(
+    stack: Stack<'static>,
+    server: &'static ModbusServer,
+    settings: &'static Settings,
+    names: &'static SimController,
+) -> ! {
+    adapter::net::run(stack, &settings.network, server, names).await
 }
 
 #[embassy_executor::task]

@@ -24,6 +24,9 @@ use embassy_time::{Duration, Instant, Timer};
 
 use crate::state::Flash;
 
+/// The model hal-sim reports (`/api/status`, mDNS TXT).
+pub(crate) const MODEL: &str = "hal-sim";
+
 /// The API's backend in hal-sim: the settings store over the state file.
 pub type SimController = Controller<'static, Flash, SimPlatform>;
 
@@ -64,7 +67,7 @@ impl SimPlatform {
 
 impl Platform for SimPlatform {
     fn model(&self) -> &'static str {
-        "hal-sim"
+        MODEL
     }
 
     fn mac(&self) -> [u8; 6] {

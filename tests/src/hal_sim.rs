@@ -82,7 +82,12 @@ impl HalSim {
     /// `state` (a file kept across runs; `None`: in memory) and its HTTP API
     /// on `http_port` (0: none).
     pub fn start_with(state: Option<&Path>, http_port: u16, args: &[&str]) -> Self {
-        let ns = Namespace::new().expect("a network namespace with a TAP");
+        Self::start_in(Namespace::new().expect("a network namespace with a TAP"), state, http_port, args)
+    }
+
+    /// Starts hal-sim as [`HalSim::start_with`] does, in `ns`, a namespace
+    /// the test made (with a DHCP server on its TAP, say) and hands over.
+    pub fn start_in(ns: Namespace, state: Option<&Path>, http_port: u16, args: &[&str]) -> Self {
         let dir = std::env::temp_dir();
         let control = dir.join(format!("{}.control.sock", ns.name()));
         let log = dir.join(format!("{}.hal-sim.log", ns.name()));

@@ -2,7 +2,9 @@
 //! under test.
 
 pub mod abuse;
+pub mod dhcp;
 pub mod hal_sim;
+pub mod mdns;
 pub mod netns;
 pub mod qemu;
 

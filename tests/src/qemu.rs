@@ -254,6 +254,11 @@ impl Qemu {
         qemu
     }
 
+    /// The namespace of a [`Qemu::tap`] QEMU.
+    pub fn ns(&self) -> Option<&Namespace> {
+        self.ns.as_ref()
+    }
+
     fn boot(network: Network<'_>, addr: SocketAddr, state: Option<&Path>) -> Result<Self, String> {
         static NEXT: AtomicU32 = AtomicU32::new(0);
         let elf = image();

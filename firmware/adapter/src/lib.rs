@@ -10,6 +10,7 @@
 //! - [`storage`]: the settings and the admin password saved on the device,
 //!   power-fail safe, over any `embedded-storage-async` NOR flash.
 //! - `http` (feature `http`): the HTTP JSON API over the settings, the server and the device.
+//! - `mdns` (feature `mdns`): the mDNS responder: `NAME.local` and the device's services.
 //!
 //! The library is `no_std` and allocation-free; every size is a named constant.
 #![cfg_attr(not(test), no_std)]
@@ -25,6 +26,8 @@ pub mod http;
 pub mod io;
 pub mod load;
 pub mod map;
+#[cfg(feature = "mdns")]
+pub mod mdns;
 pub mod net;
 pub mod server;
 pub mod settings;

@@ -9,13 +9,41 @@
 //! - `static`: the static address from the start, on every link-up.
 //! - Link loss closes every Modbus session at once: its peer may be gone,
 //!   and after a renewal the address may have changed.
+//! - DHCP sends the device name in force as its hostname (option 12). A
+//!   name changed at run time goes out with the next fresh exchange: the
+//!   next link-up, the next start, or when the lease is lost and DHCP starts
+//!   over. A renewal keeps the name the lease was taken with (changing it
+//!   would mean dropping the address the sessions run on).
 
 use embassy_net::{ConfigV4, DhcpConfig, Ipv4Address, Ipv4Cidr, Stack, StaticConfigV4};
 use embassy_time::{Duration, Instant, Ticker};
 
 use crate::fmt::Ip;
 use crate::server::{Server, Service};
-use crate::settings::{Cidr, NetMode, NetworkSettings};
+use crate::settings::{Cidr, Name, NetMode, NetworkSettings};
+
+/// The device name in force (DHCP's hostname, the mDNS name): fixed for a
+/// program without the settings store, or the settings' name, which the
+/// HTTP API may change at run time (`http::Controller`).
+pub trait DeviceName {
+    /// The name now (the MAC-made default when none is set).
+    fn device_name(&self) -> Name;
+}
+
+/// A fixed name.
+impl DeviceName for Name {
+    fn device_name(&self) -> Name {
+        *self
+    }
+}
+
+/// DHCP, sending `name` as the hostname (option 12).
+pub fn dhcp_config(name: &Name) -> DhcpConfig {
+    let mut config = DhcpConfig::default();
+    // A name is at most 32 bytes, embassy-net's limit for the hostname.
+    config.hostname = heapless::String::try_from(name.as_str()).ok();
+    config
+}
 
 /// A locally administered, unicast MAC address from a chip's 96-bit unique
 /// ID: `02` then 40 bits of the ID's FNV-1a hash. The same chip always gets
@@ -35,11 +63,12 @@ pub const fn mac_from_uid(uid: &[u8; 12]) -> [u8; 6] {
     [0x02, a, b, c, d, e]
 }
 
-/// The address configuration to start with: DHCP, or the static address.
-pub fn initial_config(settings: &NetworkSettings) -> embassy_net::Config {
+/// The address configuration to start with: DHCP (with `name` as the
+/// hostname), or the static address.
+pub fn initial_config(settings: &NetworkSettings, name: &Name) -> embassy_net::Config {
     match static_config(settings) {
         Some(config) if settings.mode == NetMode::Static => embassy_net::Config::ipv4_static(config),
-        _ => embassy_net::Config::dhcpv4(DhcpConfig::default()),
+        _ => embassy_net::Config::dhcpv4(dhcp_config(name)),
     }
 }
 
@@ -57,10 +86,16 @@ pub fn static_config(settings: &NetworkSettings) -> Option<StaticConfigV4> {
 /// closes the sessions at most this late.
 pub const LINK_POLL: Duration = Duration::from_millis(100);
 
-/// Follows the link forever: configures the address on each link-up and
-/// closes the sessions on each link loss. One small state machine on a
-/// 100 ms tick ([`LINK_POLL`]): cheaper in flash than a future per event.
-pub async fn run<S: Service>(stack: Stack<'_>, settings: &NetworkSettings, server: &Server<'_, S>) -> ! {
+/// Follows the link forever: configures the address on each link-up (DHCP
+/// with `name`'s name then) and closes the sessions on each link loss. One
+/// small state machine on a 100 ms tick ([`LINK_POLL`]): cheaper in flash
+/// than a future per event.
+pub async fn run<S: Service, N: DeviceName + ?Sized>(
+    stack: Stack<'_>,
+    settings: &NetworkSettings,
+    server: &Server<'_, S>,
+    name: &N,
+) -> ! {
     let port = server.with_config(|config| config.port);
     let fallback = static_config(settings);
     let mut ticker = Ticker::every(LINK_POLL);
@@ -78,7 +113,7 @@ pub async fn run<S: Service>(stack: Stack<'_>, settings: &NetworkSettings, serve
                     None
                 }
                 (_, fallback) => {
-                    stack.set_config_v4(ConfigV4::Dhcp(DhcpConfig::default()));
+                    stack.set_config_v4(ConfigV4::Dhcp(dhcp_config(&name.device_name())));
                     let timeout = Duration::from_secs(u64::from(settings.dhcp_timeout_s));
                     fallback.as_ref().map(|_| Instant::now() + timeout)
                 }
@@ -106,6 +141,8 @@ pub async fn run<S: Service>(stack: Stack<'_>, settings: &NetworkSettings, serve
             }
         } else if address && !address_now && link_now {
             warn!("address lost; waiting for DHCP");
+            // A fresh exchange, with the name in force now.
+            stack.set_config_v4(ConfigV4::Dhcp(dhcp_config(&name.device_name())));
         }
         address = address_now;
         ticker.next().await;
@@ -130,14 +167,26 @@ mod tests {
     #[test]
     fn static_and_dhcp_start_as_the_settings_say() {
         let mut network = crate::settings::Settings::DEFAULT.network;
+        let name = Name::parse("mbio-1").unwrap();
         assert!(static_config(&network).is_none());
-        assert!(matches!(initial_config(&network).ipv4, ConfigV4::Dhcp(_)));
+        assert!(matches!(initial_config(&network, &name).ipv4, ConfigV4::Dhcp(_)));
         network.address = Cidr::parse_optional("198.18.0.2/24").unwrap();
         network.gateway = crate::settings::Ipv4::parse_optional("198.18.0.1").unwrap();
-        assert!(matches!(initial_config(&network).ipv4, ConfigV4::Dhcp(_)), "the address is DHCP's fallback");
+        assert!(matches!(initial_config(&network, &name).ipv4, ConfigV4::Dhcp(_)), "the address is DHCP's fallback");
         network.mode = NetMode::Static;
-        let ConfigV4::Static(config) = initial_config(&network).ipv4 else { panic!("static") };
+        let ConfigV4::Static(config) = initial_config(&network, &name).ipv4 else { panic!("static") };
         assert_eq!(config.address, Ipv4Cidr::new(Ipv4Address::new(198, 18, 0, 2), 24));
         assert_eq!(config.gateway, Some(Ipv4Address::new(198, 18, 0, 1)));
+    }
+
+    #[test]
+    fn dhcp_sends_the_name_as_its_hostname() {
+        let network = crate::settings::Settings::DEFAULT.network;
+        let name = Name::from_mac([2, 0x4d, 0x42, 0x53, 0x49, 0x4d]);
+        let ConfigV4::Dhcp(config) = initial_config(&network, &name).ipv4 else { panic!("dhcp") };
+        assert_eq!(config.hostname.as_deref(), Some("mbio-53494d"));
+        // The longest name a setting may hold still fits embassy-net's hostname.
+        let longest = Name::parse(&"a".repeat(crate::settings::MAX_NAME_LEN)).unwrap();
+        assert_eq!(dhcp_config(&longest).hostname.as_deref(), Some(longest.as_str()));
     }
 }

@@ -137,6 +137,8 @@ mod mac {
     pub const CR: u32 = 1;
     pub const ADDRH: u32 = 2;
     pub const ADDRL: u32 = 3;
+    pub const HASHH: u32 = 4;
+    pub const HASHL: u32 = 5;
     pub const MII_ACC: u32 = 6;
     pub const MII_DATA: u32 = 7;
     /// `MAC_CSR_CMD`: start (and busy while running).
@@ -147,6 +149,9 @@ mod mac {
     pub const CR_RXEN: u32 = 1 << 2;
     pub const CR_TXEN: u32 = 1 << 3;
     pub const CR_FDPX: u32 = 1 << 20;
+    /// `MAC_CR`: multicast frames pass through the hash table (unicast
+    /// stays perfect-filtered; datasheet table 3.x, "Address Filtering Modes").
+    pub const CR_HPFILT: u32 = 1 << 13;
     /// `MII_ACC`: busy, write.
     pub const MII_BUSY: u32 = 1;
     pub const MII_WRITE: u32 = 1 << 1;
@@ -166,6 +171,54 @@ mod phy {
     pub const FULL_DUPLEX: u16 = (1 << 8) | (1 << 6);
     /// Interrupt sources: link down, auto-negotiation complete.
     pub const INT_LINK: u16 = (1 << 4) | (1 << 6);
+}
+
+/// The Ethernet address of an IPv4 multicast group (RFC 1112 section 6.4):
+/// `01:00:5e` and the group's low 23 bits.
+pub const fn ipv4_multicast_mac(group: [u8; 4]) -> [u8; 6] {
+    let [_, b, c, d] = group;
+    [0x01, 0x00, 0x5e, b & 0x7f, c, d]
+}
+
+/// The bit of the 64-bit multicast hash table that `mac` falls on: the top
+/// 6 bits of the Ethernet CRC of the address (datasheet 3.x, "Hash Only
+/// Filtering"), computed as the MAC does: bits in wire order (each byte
+/// from its lowest bit), register preset to all ones, no final inversion.
+pub const fn multicast_hash(mac: [u8; 6]) -> u8 {
+    const POLYNOMIAL: u32 = 0x04c1_1db7;
+    let mut crc = u32::MAX;
+    let mut rest = mac.as_slice();
+    while let [byte, tail @ ..] = rest {
+        let mut bits = *byte;
+        let mut i = 0;
+        while i < 8 {
+            let feedback = (crc >> 31) ^ (bits as u32 & 1);
+            crc <<= 1;
+            if feedback != 0 {
+                crc ^= POLYNOMIAL;
+            }
+            bits >>= 1;
+            i += 1;
+        }
+        rest = tail;
+    }
+    (crc >> 26) as u8
+}
+
+/// `HASHH` and `HASHL` with the bits of `groups` set.
+pub const fn hash_table(groups: &[[u8; 6]]) -> (u32, u32) {
+    let (mut high, mut low) = (0u32, 0u32);
+    let mut rest = groups;
+    while let [group, tail @ ..] = rest {
+        let bit = multicast_hash(*group);
+        if bit & 0x20 != 0 {
+            high |= 1 << (bit & 0x1f);
+        } else {
+            low |= 1 << (bit & 0x1f);
+        }
+        rest = tail;
+    }
+    (high, low)
 }
 
 /// Access to one chip: its 32-bit registers and its interrupt line.
@@ -375,6 +428,20 @@ impl<I: Interface> Lan9118<I> {
     /// The MAC address in use.
     pub fn mac(&self) -> [u8; 6] {
         self.mac
+    }
+
+    /// Lets in the multicast frames to `groups` (Ethernet addresses, see
+    /// [`ipv4_multicast_mac`]) through the hash filter, beside the own
+    /// address and broadcast: an mDNS group, say. Other multicast stays out
+    /// unless it shares a hash bit (1 in 64 for a random group). An empty
+    /// list lets no multicast in, as after [`Lan9118::new`].
+    pub fn accept_multicast(&mut self, groups: &[[u8; 6]]) -> Result<(), Error> {
+        let (high, low) = hash_table(groups);
+        self.mac_write(mac::HASHH, high)?;
+        self.mac_write(mac::HASHL, low)?;
+        let cr = self.mac_read(mac::CR)?;
+        let cr = if groups.is_empty() { cr & !mac::CR_HPFILT } else { cr | mac::CR_HPFILT };
+        self.mac_write(mac::CR, cr)
     }
 
     /// Counters since start-up.

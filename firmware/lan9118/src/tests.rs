@@ -114,6 +114,44 @@ impl Chip {
         self.int_sts |= int::RSFL;
     }
 
+    /// A frame on the wire: kept, as `arrive`, only if the MAC's address
+    /// filter passes it. The filter as QEMU's `lan9118_filter` and the
+    /// datasheet's "Address Filtering Modes" table have it: promiscuous
+    /// (PRMS) passes all; broadcast unless BCAST disables it; multicast all
+    /// with MCPAS; else multicast by the hash table with HPFILT, or by the
+    /// own address without it; unicast by the own address (no HO here).
+    /// Returns whether it was kept.
+    fn offer(&mut self, frame: &[u8]) -> bool {
+        const PRMS: u32 = 1 << 18;
+        const MCPAS: u32 = 1 << 19;
+        const BCAST: u32 = 1 << 11;
+        let cr = self.mac_csr.get(&mac::CR).copied().unwrap_or(0);
+        let dst = &frame[..6];
+        let low = self.mac_csr.get(&mac::ADDRL).copied().unwrap_or(0).to_le_bytes();
+        let high = self.mac_csr.get(&mac::ADDRH).copied().unwrap_or(0).to_le_bytes();
+        let own = [low[0], low[1], low[2], low[3], high[0], high[1]];
+        let passes = if cr & PRMS != 0 {
+            true
+        } else if dst == [0xff; 6] {
+            cr & BCAST == 0
+        } else if dst[0] & 1 != 0 && cr & MCPAS != 0 {
+            true
+        } else if dst[0] & 1 != 0 && cr & mac::CR_HPFILT != 0 {
+            // The hash: the top 6 bits of the MSB-first Ethernet CRC of the
+            // address, here from the IEEE CRC-32 (its bit mirror, uninverted).
+            let hash = (!crc32(dst)).reverse_bits() >> 26;
+            let table = if hash & 0x20 != 0 { mac::HASHH } else { mac::HASHL };
+            self.mac_csr.get(&table).copied().unwrap_or(0) >> (hash & 0x1f) & 1 != 0
+        } else {
+            dst == own
+        };
+        if passes {
+            let multicast = if dst[0] & 1 != 0 && dst != [0xff; 6] { 1 << 10 } else { 0 };
+            self.arrive(frame, status_for(frame) | multicast);
+        }
+        passes
+    }
+
     /// The frames written to the TX data FIFO, decoded from their command words.
     fn sent(&self) -> Vec<Vec<u8>> {
         let mut frames = Vec::new();
@@ -518,4 +556,62 @@ fn every_call_rearms_the_interrupt_line() {
     let _ = driver.transmit(&mut cx());
     let _ = driver.receive(&mut cx());
     assert_eq!(driver.io.arms, before + 3);
+}
+
+/// A frame to `dst` (IPv4 EtherType, padded to the minimum).
+fn frame_to(dst: [u8; 6]) -> Vec<u8> {
+    let mut frame = vec![0u8; 60];
+    frame[..6].copy_from_slice(&dst);
+    frame[6..12].copy_from_slice(&[0x52, 0x55, 0x0a, 0x00, 0x02, 0x02]);
+    frame[12..14].copy_from_slice(&[0x08, 0x00]);
+    frame
+}
+
+/// mDNS's group 224.0.0.251, SSDP's 239.255.255.250, IPv6 MLDv2's ff02::16.
+const MDNS: [u8; 6] = [0x01, 0x00, 0x5e, 0x00, 0x00, 0xfb];
+const SSDP: [u8; 6] = [0x01, 0x00, 0x5e, 0x7f, 0xff, 0xfa];
+const MLD: [u8; 6] = [0x33, 0x33, 0x00, 0x00, 0x00, 0x16];
+
+#[test]
+fn multicast_addresses_and_their_hash_bits() {
+    assert_eq!(ipv4_multicast_mac([224, 0, 0, 251]), MDNS);
+    assert_eq!(ipv4_multicast_mac([239, 255, 255, 250]), SSDP, "the group's top bit of 23 is dropped");
+    // The driver's bitwise CRC against the model's (from the IEEE CRC-32).
+    for mac in [MDNS, SSDP, MLD, QEMU_MAC, [0xff; 6], [0; 6]] {
+        assert_eq!(u32::from(multicast_hash(mac)), (!crc32(&mac)).reverse_bits() >> 26, "{mac:02x?}");
+    }
+    assert_eq!(multicast_hash(MDNS), 15);
+    assert_eq!(hash_table(&[MDNS]), (0, 1 << 15));
+    assert_eq!(hash_table(&[MDNS, SSDP]), (1 << (43 - 32), 1 << 15));
+}
+
+#[test]
+fn only_the_accepted_multicast_group_passes_the_filter() {
+    let mut driver = driver();
+    // After init: own address and broadcast only.
+    assert!(!driver.io.offer(&frame_to(MDNS)), "no multicast before it is asked for");
+    assert!(driver.io.offer(&frame_to([0xff; 6])));
+    assert!(driver.io.offer(&frame_to(QEMU_MAC)));
+    assert!(!driver.io.offer(&frame_to([0x52, 0x54, 0x00, 0x12, 0x34, 0x57])), "another station's");
+    assert_eq!(receive(&mut driver).map(|f| f[..6].to_vec()), Some(vec![0xff; 6]));
+    assert_eq!(receive(&mut driver).map(|f| f[..6].to_vec()), Some(QEMU_MAC.to_vec()));
+    assert_eq!(receive(&mut driver), None);
+
+    driver.accept_multicast(&[MDNS]).unwrap();
+    let cr = driver.io.mac_csr[&mac::CR];
+    assert_eq!(cr, mac::CR_RXEN | mac::CR_TXEN | mac::CR_FDPX | mac::CR_HPFILT, "the rest of MAC_CR kept");
+    assert!(driver.io.offer(&frame_to(MDNS)));
+    let frame = receive(&mut driver).unwrap();
+    assert_eq!(frame[..6], MDNS);
+    for other in [SSDP, MLD] {
+        assert!(!driver.io.offer(&frame_to(other)), "{other:02x?} stays out");
+    }
+    // Unicast is still perfect-filtered, broadcast still passes.
+    assert!(!driver.io.offer(&frame_to([0x52, 0x54, 0x00, 0x12, 0x34, 0x57])));
+    assert!(driver.io.offer(&frame_to([0xff; 6])));
+    assert!(driver.io.offer(&frame_to(QEMU_MAC)));
+
+    driver.accept_multicast(&[]).unwrap();
+    assert!(!driver.io.offer(&frame_to(MDNS)), "an empty list: no multicast again");
+    assert_eq!(driver.io.mac_csr[&mac::CR] & mac::CR_HPFILT, 0);
 }

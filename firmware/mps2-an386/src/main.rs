@@ -2,7 +2,8 @@
 //! embassy-net, the Modbus listeners, the 100 ms refresh with no robot, and
 //! digital outputs 1 and 2 on the FPGA user LEDs; with the `http` feature
 //! (on by default) the settings saved in the PSRAM region and the HTTP API
-//! on port 80 ([`platform`]).
+//! on port 80 ([`platform`]); with the `mdns` feature (on by default) the
+//! mDNS responder (`NAME.local`, `_modbus._tcp`, `_http._tcp`).
 //!
 //! Address: the adapter's network policy with the settings in force (the
 //! saved ones, or this board's factory settings [`SETTINGS`]): DHCP (slirp
@@ -12,7 +13,10 @@
 #![no_main]
 
 use adapter::device::{self, Device};
+use adapter::net::DeviceName;
 use adapter::server::{self, SOCKET_POOL, Server, SlotId};
+#[cfg(not(feature = "http"))]
+use adapter::settings::Name;
 use adapter::settings::{Cidr, NetMode, NetworkSettings, Settings};
 #[cfg(feature = "http")]
 use adapter::{http::Controller, storage::Store};
@@ -30,12 +34,19 @@ use board::{Leds, Mmio, RamInputs};
 use lan9118::Lan9118;
 use static_cell::StaticCell;
 
-/// Sockets the stack holds: the Modbus listeners, DHCP's, and the HTTP listeners.
-const SOCKETS: usize = SOCKET_POOL + 1 + HTTP_SOCKETS;
+/// Sockets the stack holds: the Modbus listeners, DHCP's, the HTTP listeners and mDNS's.
+const SOCKETS: usize = SOCKET_POOL + 1 + HTTP_SOCKETS + MDNS_SOCKETS;
 #[cfg(feature = "http")]
 const HTTP_SOCKETS: usize = adapter::http::MAX_HTTP_CONNECTIONS;
 #[cfg(not(feature = "http"))]
 const HTTP_SOCKETS: usize = 0;
+#[cfg(feature = "mdns")]
+const MDNS_SOCKETS: usize = 1;
+#[cfg(not(feature = "mdns"))]
+const MDNS_SOCKETS: usize = 0;
+
+/// The board, as `/api/status` and mDNS's TXT name it.
+pub const MODEL: &str = "mps2-an386";
 
 /// The factory settings: DHCP with the test bench's address as the
 /// fallback after 5 s, then the build's variables (a bad value stops the build).
@@ -57,9 +68,12 @@ const _: () = assert!(SETTINGS.modbus.port != adapter::http::HTTP_PORT, "MODBUS_
 /// The Modbus server over the device.
 type ModbusServer = Server<'static, Device<'static>>;
 
-/// The HTTP API over the settings store and this board.
+/// The settings, the store and the password over this board.
 #[cfg(feature = "http")]
-type Api = adapter::http::Http<'static, Controller<'static, platform::SettingsFlash, platform::Mps2>>;
+type Backend = Controller<'static, platform::SettingsFlash, platform::Mps2>;
+/// The HTTP API over them.
+#[cfg(feature = "http")]
+type Api = adapter::http::Http<'static, Backend>;
 
 static LEDS: Leds = Leds;
 
@@ -73,6 +87,15 @@ fn main() -> ! {
     };
     let mac = ethernet.mac();
     defmt::info!("LAN9118 up, MAC {=[u8]:02x}", mac);
+    // The mDNS group through the MAC's hash filter (other multicast stays out).
+    #[cfg(feature = "mdns")]
+    let ethernet = {
+        let mut ethernet = ethernet;
+        if let Err(e) = ethernet.accept_multicast(&[lan9118::ipv4_multicast_mac(adapter::mdns::GROUP)]) {
+            fail("LAN9118 multicast filter", e)
+        }
+        ethernet
+    };
 
     // The settings in force: the saved ones (the factory settings when
     // none are saved or they cannot be taken whole), or without the
@@ -92,7 +115,8 @@ fn main() -> ! {
     // sequence numbers and ports between boards, so the MAC will do.
     let [a, b, c, d, e, f] = mac;
     let seed = u64::from_le_bytes([a, b, c, d, e, f, 0x4d, 0x42]);
-    let config = adapter::net::initial_config(&settings.network);
+    let name = settings.device.name.or_default(mac);
+    let config = adapter::net::initial_config(&settings.network, &name);
     let (stack, runner) = embassy_net::new(ethernet, config, RESOURCES.init(StackResources::new()), seed);
 
     static DEVICE: StaticCell<Device<'static>> = StaticCell::new();
@@ -102,25 +126,31 @@ fn main() -> ! {
     let server: &'static ModbusServer = SERVER.init(Server::new(settings.server_config(), device));
 
     #[cfg(feature = "http")]
-    let api: &'static Api = {
+    let (api, names): (&'static Api, &'static dyn DeviceName) = {
         let platform = platform::Mps2::new(stack, mac, settings.network.mode);
-        static CONTROLLER: StaticCell<Controller<'static, platform::SettingsFlash, platform::Mps2>> = StaticCell::new();
-        let controller = CONTROLLER.init(Controller::new(server, platform, store, &loaded));
+        static CONTROLLER: StaticCell<Backend> = StaticCell::new();
+        let controller: &'static Backend = CONTROLLER.init(Controller::new(server, platform, store, &loaded));
         static API: StaticCell<Api> = StaticCell::new();
-        API.init(adapter::http::Http::new(controller))
+        (API.init(adapter::http::Http::new(controller)), controller)
+    };
+    // Without the settings store the name never changes.
+    #[cfg(not(feature = "http"))]
+    let names: &'static dyn DeviceName = {
+        static NAME: StaticCell<Name> = StaticCell::new();
+        NAME.init(name)
     };
 
     runtime::run(|spawner| {
-        let spawned = spawn_all(
-            spawner,
+        let shared = Shared {
             stack,
-            runner,
-            &settings.network,
+            settings,
+            names,
             device,
             server,
             #[cfg(feature = "http")]
             api,
-        );
+        };
+        let spawned = spawn_all(spawner, runner, shared);
         if let Err(e) = spawned {
             fail("spawn", e)
         }
@@ -147,17 +177,45 @@ fn load_settings() -> (Store<platform::SettingsFlash>, adapter::storage::Loaded)
     (store, loaded)
 }
 
-fn spawn_all(
-    spawner: Spawner,
+/// What the tasks share, all of it for the life of the program.
+#[derive(Clone, Copy)]
+struct Shared {
     stack: Stack<'static>,
-    runner: Runner<'static, Lan9118<Mmio>>,
-    network: &'static NetworkSettings,
+    /// The settings in force at start.
+    settings: &'static Settings,
+    /// The device name in force (the API may change it).
+    names: &'static dyn DeviceName,
     device: &'static Device<'static>,
     server: &'static ModbusServer,
-    #[cfg(feature = "http")] api: &'static Api,
+    #[cfg(feature = "http")]
+    api: &'static Api,
+}
+
+fn spawn_all(
+    spawner: Spawner,
+    runner: Runner<'static, Lan9118<Mmio>>,
+    shared: Shared,
 ) -> Result<(), embassy_executor::SpawnError> {
+    #[cfg(feature = "http")]
+    let Shared { stack, settings, names, device, server, api } = shared;
+    #[cfg(not(feature = "http"))]
+    let Shared { stack, settings, names, device, server } = shared;
     spawner.spawn(net_task(runner)?);
-    spawner.spawn(link_task(stack, network, server)?);
+    spawner.spawn(link_task(stack, &settings.network, server, names)?);
+    #[cfg(feature = "mdns")]
+    {
+        #[cfg(feature = "http")]
+        let http_port = Some(adapter::http::HTTP_PORT);
+        #[cfg(not(feature = "http"))]
+        let http_port = None;
+        let services = adapter::mdns::Services {
+            model: MODEL,
+            version: adapter::VERSION,
+            modbus_port: server.config().port,
+            http_port,
+        };
+        spawner.spawn(mdns_task(stack, names, services)?);
+    }
     spawner.spawn(refresh_task(device)?);
     for slot in 0..SOCKET_POOL {
         spawner.spawn(modbus_task(stack, server, slot)?);
@@ -183,10 +241,22 @@ async fn net_task(mut runner: Runner<'static, Lan9118<Mmio>>) -> ! {
     runner.run().await
 }
 
-/// Follows the link with the adapter's network policy.
+/// Follows the link with the adapter's network policy (DHCP's hostname: the name in force).
 #[embassy_executor::task]
-async fn link_task(stack: Stack<'static>, network: &'static NetworkSettings, server: &'static ModbusServer) -> ! {
-    adapter::net::run(stack, network, server).await
+async fn link_task(
+    stack: Stack<'static>,
+    network: &'static NetworkSettings,
+    server: &'static ModbusServer,
+    names: &'static dyn DeviceName,
+) -> ! {
+    adapter::net::run(stack, network, server, names).await
+}
+
+/// Answers mDNS queries for the name in force and the services.
+#[cfg(feature = "mdns")]
+#[embassy_executor::task]
+async fn mdns_task(stack: Stack<'static>, names: &'static dyn DeviceName, services: adapter::mdns::Services) -> ! {
+    adapter::mdns::run(stack, names, services).await
 }
 
 #[embassy_executor::task]

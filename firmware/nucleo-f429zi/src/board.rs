@@ -34,8 +34,6 @@ use crate::{ModbusServer, leds, net, safety};
 #[cfg(feature = "http")]
 use crate::{button, flash};
 use adapter::device::Device;
-#[cfg(feature = "http")]
-use adapter::settings::NetworkSettings;
 
 bind_interrupts!(
     /// Every interrupt the board uses, bound to its handler.
@@ -265,27 +263,18 @@ pub fn init() -> Board {
 }
 
 /// Spawns the board's own tasks: the watchdog feeder, the network runner,
-/// the link supervisor (on `network`, the settings in force; without the
-/// `http` feature the factory settings, a constant: 40 bytes less), the input
-/// edges and the LEDs.
+/// the input edges and the LEDs.
 pub fn spawn(
     spawner: Spawner,
     tasks: Tasks,
     runner: net::Runner,
     stack: Stack<'static>,
-    #[cfg(feature = "http")] network: &'static NetworkSettings,
     device: &'static Device<'static>,
     server: &'static ModbusServer,
 ) -> Result<(), SpawnError> {
     let Tasks { watchdog, edges, leds } = tasks;
     spawner.spawn(safety::watchdog_task(watchdog)?);
     spawner.spawn(net::runner_task(runner)?);
-    spawner.spawn(net::link_task(
-        stack,
-        #[cfg(feature = "http")]
-        network,
-        server,
-    )?);
     spawner.spawn(pins::edge_task(edges, device)?);
     spawner.spawn(leds::led_task(leds, stack, server)?);
     Ok(())

@@ -1,6 +1,7 @@
 //! The NUCLEO-F429ZI image: Modbus TCP on port 502 over the board's Ethernet,
 //! and with the `http` feature (on by default) the settings saved in flash
-//! and the HTTP API on port 80 ([`http`]).
+//! and the HTTP API on port 80 ([`http`]); with `mdns` (off by default: over
+//! the budget today) the mDNS responder.
 //!
 //! Build and flash: `cargo nucleo` (see `docs/nucleo-f429zi.md`). The
 //! factory settings are the defaults of `adapter::settings`, changed by the
@@ -23,7 +24,10 @@ mod runtime;
 mod safety;
 
 use adapter::device::{self, Device};
+use adapter::net::DeviceName;
 use adapter::server::{self, SOCKET_POOL, Server, SlotId};
+#[cfg(not(feature = "http"))]
+use adapter::settings::Name;
 use adapter::settings::Settings;
 use defmt::unwrap;
 use defmt_rtt as _;
@@ -39,6 +43,9 @@ pub const SETTINGS: Settings = Settings::DEFAULT.with_build_env();
 // `MODBUS_PORT` may not take the API's port (the API refuses it at run time).
 #[cfg(feature = "http")]
 const _: () = assert!(SETTINGS.modbus.port != adapter::http::HTTP_PORT, "MODBUS_PORT must not be the HTTP port");
+
+/// The board, as `/api/status` and mDNS's TXT name it.
+pub const MODEL: &str = "nucleo-f429zi";
 
 /// The Modbus server over the device.
 pub type ModbusServer = Server<'static, Device<'static>>;
@@ -85,33 +92,59 @@ async fn start(spawner: Spawner) {
     static SERVER: StaticCell<ModbusServer> = StaticCell::new();
     let server = &*SERVER.init(Server::new(settings.server_config(), device));
 
-    let config = adapter::net::initial_config(&settings.network);
+    let name = settings.device.name.or_default(board.mac);
+    let config = adapter::net::initial_config(&settings.network, &name);
     let (stack, runner) = embassy_net::new(board.ethernet, config, net::resources(), board.seed);
+
+    // The name in force: the settings' (the API may change it), or without
+    // the store the factory name, fixed.
+    #[cfg(feature = "http")]
+    let platform = http::Nucleo::new(stack, board.mac, settings, board.reset, board.rng);
+    let api = http::api(server, platform, store, &loaded);
+    #[cfg(feature = "http")]
+    let names: &'static dyn DeviceName = api.backend();
+    #[cfg(not(feature = "http"))]
+    let names: &'static dyn DeviceName = {
+        static NAME: StaticCell<Name> = StaticCell::new();
+        NAME.init(name)
+    };
 
     // Every task pool is sized for exactly these spawns; a failure is a build
     // mistake, and its panic ends in the fault handler (outputs off, reset).
-    unwrap!(board::spawn(
-        spawner,
-        board.tasks,
-        runner,
+    unwrap!(board::spawn(spawner, board.tasks, runner, stack, device, server));
+    // The link supervisor, on the settings in force (without the `http`
+    // feature the factory settings, a constant: 40 bytes less).
+    spawner.spawn(unwrap!(net::link_task(
         stack,
         #[cfg(feature = "http")]
         &settings.network,
-        device,
-        server
-    ));
+        server,
+        names
+    )));
     for slot in 0..SOCKET_POOL {
         spawner.spawn(unwrap!(modbus_task(stack, server, slot)));
     }
     spawner.spawn(unwrap!(refresh_task(device, board.inputs)));
     #[cfg(feature = "http")]
     {
-        let platform = http::Nucleo::new(stack, board.mac, settings, board.reset, board.rng);
-        let api = http::api(server, platform, store, &loaded);
         for _ in 0..adapter::http::MAX_HTTP_CONNECTIONS {
             spawner.spawn(unwrap!(http_task(stack, api)));
         }
         defmt::info!("HTTP API on port {}", adapter::http::HTTP_PORT);
+    }
+    #[cfg(feature = "mdns")]
+    {
+        #[cfg(feature = "http")]
+        let http_port = Some(adapter::http::HTTP_PORT);
+        #[cfg(not(feature = "http"))]
+        let http_port = None;
+        let services = adapter::mdns::Services {
+            model: MODEL,
+            version: adapter::VERSION,
+            modbus_port: server.config().port,
+            http_port,
+        };
+        spawner.spawn(unwrap!(mdns_task(stack, names, services)));
     }
     let config = server.config();
     defmt::info!("serving Modbus TCP on port {}, {} sessions", config.port, config.max_connections);
@@ -122,6 +155,13 @@ async fn start(spawner: Spawner) {
 async fn refresh_task(device: &'static Device<'static>, mut inputs: pins::Inputs) -> ! {
     let mut robot = robot();
     device::refresh_loop(device, &mut inputs, &mut robot).await
+}
+
+/// Answers mDNS queries for the name in force and the services.
+#[cfg(feature = "mdns")]
+#[embassy_executor::task]
+async fn mdns_task(stack: Stack<'static>, names: &'static dyn DeviceName, services: adapter::mdns::Services) -> ! {
+    adapter::mdns::run(stack, names, services).await
 }
 
 /// One Modbus listener per socket; its buffers live in the task's static storage.

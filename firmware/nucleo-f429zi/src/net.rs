@@ -24,12 +24,16 @@ pub const RX_PACKETS: usize = 4;
 /// one more costs 1.5 KiB of the 64 KiB budget.
 pub const TX_PACKETS: usize = 3;
 /// Sockets in the stack: the Modbus listeners and DHCP's (and the HTTP
-/// listeners with the `http` feature).
-pub const NET_SOCKETS: usize = SOCKET_POOL + 1 + HTTP_SOCKETS;
+/// listeners with the `http` feature, mDNS's with `mdns`).
+pub const NET_SOCKETS: usize = SOCKET_POOL + 1 + HTTP_SOCKETS + MDNS_SOCKETS;
 #[cfg(feature = "http")]
 const HTTP_SOCKETS: usize = adapter::http::MAX_HTTP_CONNECTIONS;
 #[cfg(not(feature = "http"))]
 const HTTP_SOCKETS: usize = 0;
+#[cfg(feature = "mdns")]
+const MDNS_SOCKETS: usize = 1;
+#[cfg(not(feature = "mdns"))]
+const MDNS_SOCKETS: usize = 0;
 
 /// The DMA descriptors and frame buffers (in SRAM: the MAC's DMA cannot reach CCM RAM).
 pub fn packets() -> &'static mut PacketQueue<TX_PACKETS, RX_PACKETS> {
@@ -49,14 +53,17 @@ pub async fn runner_task(mut runner: Runner) -> ! {
     runner.run().await
 }
 
-/// Follows the link with `network` (the settings in force): the address on each link-up, closed sessions on each link loss.
+/// Follows the link with `network` (the settings in force): the address on
+/// each link-up (DHCP with the name `names` gives then), closed sessions on
+/// each link loss.
 #[embassy_executor::task]
 pub async fn link_task(
     stack: Stack<'static>,
     #[cfg(feature = "http")] network: &'static NetworkSettings,
     server: &'static ModbusServer,
+    names: &'static dyn adapter::net::DeviceName,
 ) -> ! {
     #[cfg(not(feature = "http"))]
     let network = &crate::SETTINGS.network;
-    adapter::net::run(stack, network, server).await
+    adapter::net::run(stack, network, server, names).await
 }

@@ -3,7 +3,7 @@
 //! the store's from records and real saves (`firmware_fuzz::storage::seeds`):
 //!
 //! ```text
-//! cargo run -p fuzz-seeds -- DIR    # writes DIR/session, DIR/handler, DIR/codec, DIR/store, DIR/record, DIR/http
+//! cargo run -p fuzz-seeds -- DIR    # writes DIR/session, DIR/handler, DIR/codec, DIR/store, DIR/record, DIR/http, DIR/mdns
 //! ```
 //!
 //! The http target's seeds are requests to every endpoint of the API
@@ -33,15 +33,17 @@ fn main() {
         write(&dir.join("store"), &firmware_fuzz::storage::seeds(), firmware_fuzz::store),
         write(&dir.join("record"), &firmware_fuzz::storage::record_seeds(), firmware_fuzz::record),
         write(&dir.join("http"), &http_seeds(), firmware_fuzz::http),
+        write(&dir.join("mdns"), &firmware_fuzz::mdns::seeds(), firmware_fuzz::mdns),
     ];
     println!(
-        "fuzz-seeds: {} session, {} handler, {} codec, {} store, {} record, {} http seeds in {}",
+        "fuzz-seeds: {} session, {} handler, {} codec, {} store, {} record, {} http, {} mdns seeds in {}",
         written[0],
         written[1],
         written[2],
         written[3],
         written[4],
         written[5],
+        written[6],
         dir.display()
     );
 }

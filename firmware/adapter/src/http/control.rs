@@ -184,6 +184,13 @@ impl<F: NorFlash, P: Platform> Backend for Controller<'_, F, P> {
     }
 }
 
+/// The name in the settings in force, as the API changes it.
+impl<F: NorFlash, P: Platform> crate::net::DeviceName for Controller<'_, F, P> {
+    fn device_name(&self) -> crate::settings::Name {
+        self.settings().device.name.or_default(self.platform.mac())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use core::cell::Cell;
@@ -235,6 +242,18 @@ mod tests {
 
     fn memory() -> &'static mut [u8] {
         Box::leak(vec![0xff; 2 * PAGE].into_boxed_slice())
+    }
+
+    #[test]
+    fn the_device_name_follows_a_change_at_once() {
+        use crate::net::DeviceName;
+        let _clock = Clock::take();
+        let control = controller(memory());
+        assert_eq!(control.device_name().as_str(), "mbio-000001", "unset: made from the MAC");
+        let mut changed = control.settings();
+        changed.set(Field::DeviceName, "press-7").unwrap();
+        assert_eq!(block_on(control.apply(&changed)), Ok(false));
+        assert_eq!(control.device_name().as_str(), "press-7");
     }
 
     #[test]
