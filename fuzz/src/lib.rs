@@ -174,7 +174,17 @@ pub fn handler(data: &[u8]) {
 pub fn codec(data: &[u8]) {
     let mut buf = [0xa5u8; MAX_ADU_LEN + 8];
     let pdu = data;
-    let known = matches!(pdu.first(), Some(0x01 | 0x03 | 0x05 | 0x06 | 0x0f | 0x10));
+    // What the codec implements (V1.1b3, 6.8.1 and 6.21): the six functions of
+    // the map, Diagnostics' eight sub-functions, Read Device Identification
+    // (2B with MEI type 0E). Anything else of theirs is 03.
+    let diagnostic = |sub: u16| [0x00, 0x0a, 0x0b, 0x0c, 0x0d, 0x0e, 0x0f, 0x12].contains(&sub);
+    let known = match pdu {
+        [0x01 | 0x03 | 0x05 | 0x06 | 0x0f | 0x10, ..] => true,
+        [0x08, hi, lo, ..] => diagnostic(u16::from_be_bytes([*hi, *lo])),
+        [0x08, ..] => true,
+        [0x2b, mei, ..] => *mei == 0x0e,
+        _ => false,
+    };
     match Request::parse(pdu) {
         Ok(request) => {
             assert!(known);

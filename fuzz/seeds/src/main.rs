@@ -19,7 +19,7 @@ use firmware_fuzz::input::{
     PARTIAL_WRITES, STALL_READS, STRICT, UNIT_FILTER,
 };
 use firmware_fuzz::{HandlerInput, HttpInput, SessionInput};
-use test_support::fixtures::PYMODBUS;
+use test_support::fixtures::{PYMODBUS, PYMODBUS_DEVICE};
 
 fn main() {
     let dir = std::env::args_os().nth(1).map(PathBuf::from).unwrap_or_else(|| {
@@ -106,7 +106,7 @@ fn handler_seeds() -> Vec<Vec<u8>> {
 
 fn codec_seeds() -> Vec<Vec<u8>> {
     let mut seeds = Vec::new();
-    for fixture in &PYMODBUS {
+    for fixture in PYMODBUS.iter().chain(&PYMODBUS_DEVICE) {
         seeds.push(fixture.request[7..].to_vec());
         seeds.push(fixture.reply[7..].to_vec());
         seeds.push(fixture.request.to_vec());

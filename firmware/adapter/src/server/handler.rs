@@ -55,6 +55,9 @@ pub fn respond(frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], image: &mut Image, p
             Err(Exception::GatewayTargetDeviceFailedToRespond)
         }
         _ if policy.read_only && function.is_write() => Err(Exception::IllegalFunction),
+        _ if matches!(function, FunctionCode::Diagnostics | FunctionCode::EncapsulatedInterfaceTransport) => {
+            Err(Exception::IllegalFunction)
+        }
         _ => execute(pdu, out.payload_mut(), image, policy.write_policy),
     };
     let (pdu_len, written, exception) = match result {
@@ -104,6 +107,8 @@ fn execute(pdu: &[u8], out: &mut [u8], image: &mut Image, policy: WritePolicy) -
             let len = Response::WriteMultipleRegisters { start, quantity }.emit(out);
             Ok((len.ok_or(Exception::ServerDeviceFailure)?, written))
         }
+        // Not served yet: refused as the function codes they are.
+        Request::Diagnostics { .. } | Request::ReadDeviceIdentification { .. } => Err(Exception::IllegalFunction),
     }
 }
 
