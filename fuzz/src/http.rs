@@ -168,7 +168,7 @@ pub fn http(data: &[u8]) {
     let flag = |bit: u8| input.flags & bit != 0;
     MockDriver::get().reset();
     let pins = Pins::default();
-    let device = Device::new(Watchdog::OFF, adapter::VERSION, &pins);
+    let device = Device::new(Watchdog::OFF, &pins);
     let settings = initial_settings();
     let server = Server::new(settings.server_config(), &device);
     let password = flag(HTTP_PASSWORD_SET).then(|| PASSWORD.as_bytes().to_vec());

@@ -51,7 +51,7 @@ pub fn session(data: &[u8]) {
     let input = SessionInput::parse(data);
     let policy = input.policy();
     let pins = Pins::default();
-    let device = Device::new(Watchdog::OFF, adapter::VERSION, &pins);
+    let device = Device::new(Watchdog::OFF, &pins);
     let server = Server::new(config(policy), &device);
     let (wire, mut end) = connection::connect(&input);
     let result = {
@@ -84,7 +84,7 @@ pub fn session(data: &[u8]) {
     // the reads. At each step it holds what the session's server should
     // hold, so it must give the very same reply.
     let model_pins = Pins::default();
-    let model_device = Device::new(Watchdog::OFF, adapter::VERSION, &model_pins);
+    let model_device = Device::new(Watchdog::OFF, &model_pins);
     let model = Server::new(config(policy), &model_device);
     let mut expected = [0u8; MAX_ADU_LEN];
     for (request, reply) in requests.iter().zip(&replies) {
@@ -117,7 +117,6 @@ pub fn handler(data: &[u8]) {
     let input = HandlerInput::parse(data);
     let policy = input.policy();
     let mut image = Image::new();
-    image.set_version(&adapter::VERSION);
     let mut reply = [0xa5u8; MAX_ADU_LEN];
     for frame in input.frames() {
         let before = image.clone();

@@ -130,8 +130,7 @@ fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>, fl
     let (stack, runner) = embassy_net::new(device, net_config, resources, RandomState::new().build_hasher().finish());
 
     let outputs: &'static OutputLatch = Box::leak(Box::new(OutputLatch::new()));
-    let device: &'static Device<'static> =
-        Box::leak(Box::new(Device::new(settings.watchdog(), adapter::VERSION, outputs)));
+    let device: &'static Device<'static> = Box::leak(Box::new(Device::new(settings.watchdog(), outputs)));
     device.drive_outputs();
     let server: &'static ModbusServer = Box::leak(Box::new(Server::new(settings.server_config(), device)));
     let board: &'static Board = Box::leak(Box::new(Board::new(device, outputs, SimRobot::new(options.robot))));

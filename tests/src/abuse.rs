@@ -38,7 +38,8 @@ impl Ledger {
     /// A fresh map under hal-sim's default policy (every unit id, `seed` writes).
     pub fn new() -> Self {
         let mut model = Image::new();
-        model.set_version(&adapter::VERSION);
+        // hal-sim's robot is the simulated one: its controller's version.
+        model.set_controller_version(&sim_robot::CONTROLLER_VERSION);
         Self { model, policy: Policy::default(), acknowledged: 0 }
     }
 

@@ -11,7 +11,7 @@
 use std::borrow::Cow;
 use std::time::Duration;
 
-use system_tests::qemu::{self, LED0, Qemu, VERSION_REGISTER};
+use system_tests::qemu::{LED0, NO_ROBOT, Qemu, ROBOT_REGISTERS};
 use tokio_modbus::ExceptionCode::{IllegalDataAddress, IllegalDataValue, IllegalFunction};
 use tokio_modbus::client::{Client as _, Context, Reader as _, Writer as _};
 use tokio_modbus::{ExceptionCode, FunctionCode, ProtocolError, Request, Response};
@@ -54,12 +54,12 @@ fn exception_of(reply: tokio_modbus::Result<Response>, function: FunctionCode) -
 }
 
 #[test]
-fn version_registers_report_the_firmware_version() {
+fn without_a_robot_the_controller_version_is_0_and_the_robot_not_ready() {
     let qemu = Qemu::slirp();
     qemu.run(|| async {
         let mut ctx = qemu.connect().await;
-        let version = ctx.read_holding_registers(VERSION_REGISTER, 3).await.unwrap().unwrap();
-        assert_eq!(version, qemu::firmware_version());
+        let robot = ctx.read_holding_registers(ROBOT_REGISTERS, 4).await.unwrap().unwrap();
+        assert_eq!(robot, NO_ROBOT, "controller version 0.0.0 (no robot source), NOT READY");
         assert_eq!(ctx.read_holding_registers(ROBOT_STATE, 1).await.unwrap().unwrap(), [NOT_READY]);
     });
     // slirp's DHCP server gave the firmware its address; the network policy
@@ -85,9 +85,8 @@ fn the_whole_coil_and_register_spaces_read_in_blocks() {
 
         let registers = read_registers(&mut ctx, 0, REGISTERS, MAX_READ_REGISTERS).await;
         let mut expected = vec![0u16; usize::from(REGISTERS)];
-        let [major, minor, patch] = qemu::firmware_version();
-        expected[256..=259].copy_from_slice(&[major, minor, patch, NOT_READY]);
-        assert_eq!(registers, expected, "at boot: the version, NOT READY, zeros elsewhere");
+        expected[usize::from(ROBOT_STATE)] = NOT_READY;
+        assert_eq!(registers, expected, "at boot: NOT READY, zeros elsewhere (no controller version: no robot)");
         assert_eq!(read_registers(&mut ctx, 0, REGISTERS, 7).await, expected, "in small blocks too");
     });
     qemu.finish();
@@ -197,8 +196,8 @@ fn eight_connections_are_served_at_once() {
                     ctx.write_single_register(register, value).await.unwrap().unwrap();
                     let read = ctx.read_holding_registers(register, 1).await.unwrap().unwrap();
                     assert_eq!(read, [value], "connection {i}, round {round}");
-                    let version = ctx.read_holding_registers(VERSION_REGISTER, 3).await.unwrap().unwrap();
-                    assert_eq!(version, qemu::firmware_version());
+                    let robot = ctx.read_holding_registers(ROBOT_REGISTERS, 4).await.unwrap().unwrap();
+                    assert_eq!(robot, NO_ROBOT);
                 }
                 ctx
             });

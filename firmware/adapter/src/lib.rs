@@ -32,7 +32,9 @@ pub mod storage;
 /// The wire codec this core speaks (its own crate: no map, no async).
 pub use modbus;
 
-/// This firmware's version, reported in registers 256-258.
+/// This firmware's version: Read Device Identification's MajorMinorRevision
+/// and `/api/status`'s `firmware`. (Registers 256-258 are the robot
+/// controller's version, from the [`io::Robot`] source.)
 pub const VERSION: io::Version = io::Version {
     major: parse_u16(env!("CARGO_PKG_VERSION_MAJOR")),
     minor: parse_u16(env!("CARGO_PKG_VERSION_MINOR")),

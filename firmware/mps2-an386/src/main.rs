@@ -92,7 +92,7 @@ fn main() -> ! {
     let (stack, runner) = embassy_net::new(ethernet, config, RESOURCES.init(StackResources::new()), seed);
 
     static DEVICE: StaticCell<Device<'static>> = StaticCell::new();
-    let device: &'static Device<'static> = DEVICE.init(Device::new(settings.watchdog(), adapter::VERSION, &LEDS));
+    let device: &'static Device<'static> = DEVICE.init(Device::new(settings.watchdog(), &LEDS));
     device.drive_outputs();
     static SERVER: StaticCell<ModbusServer> = StaticCell::new();
     let server: &'static ModbusServer = SERVER.init(Server::new(settings.server_config(), device));

@@ -67,7 +67,7 @@ async fn main(spawner: Spawner) {
     let settings: &'static Settings = &SETTINGS;
 
     static DEVICE: StaticCell<Device<'static>> = StaticCell::new();
-    let device = &*DEVICE.init(Device::new(settings.watchdog(), adapter::VERSION, board.outputs));
+    let device = &*DEVICE.init(Device::new(settings.watchdog(), board.outputs));
     device.drive_outputs();
     static SERVER: StaticCell<ModbusServer> = StaticCell::new();
     let server = &*SERVER.init(Server::new(settings.server_config(), device));

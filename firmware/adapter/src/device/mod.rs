@@ -15,7 +15,7 @@ use embassy_time::{Duration, Instant, Ticker};
 
 pub use self::stats::{Counters, Stats};
 pub use self::watchdog::{SafeState, Watchdog};
-use crate::io::{InputPins, OutputPins, Robot, RobotStatus, Version};
+use crate::io::{InputPins, OutputPins, Robot, RobotStatus};
 use crate::map::Image;
 use crate::map::table::reg;
 use crate::modbus::mbap::MAX_ADU_LEN;
@@ -38,26 +38,21 @@ struct State {
 pub struct Device<'a> {
     state: Mutex<CriticalSectionRawMutex, RefCell<State>>,
     outputs: &'a dyn OutputPins,
-    version: Version,
     stats: Stats,
 }
 
 impl core::fmt::Debug for Device<'_> {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.debug_struct("Device")
-            .field("watchdog", &self.watchdog())
-            .field("version", &self.version)
-            .finish_non_exhaustive()
+        f.debug_struct("Device").field("watchdog", &self.watchdog()).finish_non_exhaustive()
     }
 }
 
 impl<'a> Device<'a> {
-    /// A fresh image with `version` in registers 256-258 and the robot NOT READY.
-    pub fn new(watchdog: Watchdog, version: Version, outputs: &'a dyn OutputPins) -> Self {
-        let mut image = Image::new();
-        image.set_version(&version);
-        let state = State { image, watchdog, monitor: watchdog::Monitor::new(Instant::now()) };
-        Self { state: Mutex::new(RefCell::new(state)), outputs, version, stats: Stats::new() }
+    /// A fresh image: the robot NOT READY and its version 0.0.0 until the
+    /// first refresh samples the robot source.
+    pub fn new(watchdog: Watchdog, outputs: &'a dyn OutputPins) -> Self {
+        let state = State { image: Image::new(), watchdog, monitor: watchdog::Monitor::new(Instant::now()) };
+        Self { state: Mutex::new(RefCell::new(state)), outputs, stats: Stats::new() }
     }
 
     /// The diagnostics counters.
@@ -180,13 +175,14 @@ impl<'a> Device<'a> {
         });
         let status = robot.status();
         let telemetry = robot.telemetry();
+        let version = robot.version();
         self.update(|image| {
             image.set_register(reg::DIGITAL_INPUTS, digital);
             image.set_register(reg::TOOL_INPUTS, u16::from(tool));
             for (channel, value) in analog.into_iter().enumerate() {
                 image.set_analog_input(channel, value);
             }
-            image.set_version(&self.version);
+            image.set_controller_version(&version);
             image.set_robot_status(&status);
             image.set_telemetry(&telemetry);
         });

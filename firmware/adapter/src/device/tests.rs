@@ -4,14 +4,14 @@
 use embassy_time::Duration;
 
 use super::*;
-use crate::io::{AnalogType, NoRobot, RobotState, RobotStatus};
+use crate::io::{AnalogType, NoRobot, RobotState, RobotStatus, Telemetry, Version};
 use crate::map::WritePolicy;
 use crate::server::testing::{Clock, RecordingPins};
 use test_support::framer::adu;
 
 fn shared_with(watchdog: Watchdog) -> (&'static Device<'static>, &'static RecordingPins) {
     let pins: &'static RecordingPins = Box::leak(Box::default());
-    (Box::leak(Box::new(Device::new(watchdog, crate::VERSION, pins))), pins)
+    (Box::leak(Box::new(Device::new(watchdog, pins))), pins)
 }
 
 fn ask(shared: &Device<'_>, pdu: &[u8]) -> Vec<u8> {
@@ -114,12 +114,12 @@ fn the_refresh_samples_the_sources_and_re_asserts_them_over_seed_writes() {
     let _clock = Clock::take();
     let (shared, _) = shared_with(Watchdog::OFF);
     // `seed` lets a master write read-only points until the next refresh.
-    assert_eq!(ask(shared, &[0x06, 0x01, 0x00, 0x00, 0x63])[0], 0x06); // version major := 99
+    assert_eq!(ask(shared, &[0x06, 0x01, 0x00, 0x00, 0x63])[0], 0x06); // controller version major := 99
     assert_eq!(ask(shared, &[0x06, 0x00, 0x00, 0x00, 0x01])[0], 0x06); // inputs := 1
     assert_eq!(ask(shared, &[0x06, 0x00, 0x07, 0x00, 0x01])[0], 0x06); // analog input 2: voltage
     shared.refresh(&mut FixedInputs, &mut NoRobot);
     shared.read(|image| {
-        assert_eq!(image.register(256), crate::VERSION.major);
+        assert_eq!([256, 257, 258].map(|a| image.register(a)), [0, 0, 0], "no robot: no controller version");
         assert_eq!(image.register(0), 0x00f0);
         assert!(image.coil(4) && !image.coil(0));
         assert_eq!(image.register(21), 0b10_0001);
@@ -129,6 +129,36 @@ fn the_refresh_samples_the_sources_and_re_asserts_them_over_seed_writes() {
         assert_eq!(image.register(259), 15, "no robot: NOT READY");
     });
     assert_eq!(WritePolicy::default(), WritePolicy::Seed);
+}
+
+/// A robot source that knows its controller's version.
+struct VersionedRobot;
+
+impl Robot for VersionedRobot {
+    fn status(&mut self) -> RobotStatus {
+        RobotStatus { state: RobotState::Standby, servo_on: true, ..RobotStatus::NOT_READY }
+    }
+    fn telemetry(&mut self) -> Telemetry {
+        Telemetry::default()
+    }
+    fn version(&mut self) -> Version {
+        Version { major: 4, minor: 12, patch: 301 }
+    }
+}
+
+#[test]
+fn registers_256_to_258_are_the_robot_controller_s_version() {
+    let _clock = Clock::take();
+    let (shared, _) = shared_with(Watchdog::OFF);
+    let version = |shared: &Device<'_>| shared.read(|image| [256, 257, 258].map(|a| image.register(a)));
+    assert_eq!(version(shared), [0, 0, 0], "until the first refresh: unknown");
+    shared.refresh(&mut FixedInputs, &mut VersionedRobot);
+    assert_eq!(version(shared), [4, 12, 301]);
+    assert_ne!(version(shared), crate::VERSION.registers(), "not the adapter's own");
+    assert_eq!(ask(shared, &[0x03, 0x01, 0x00, 0x00, 0x04]), [0x03, 0x08, 0, 4, 0, 12, 0x01, 0x2d, 0, 1]);
+    // A source that loses its controller says so; the registers follow.
+    shared.refresh(&mut FixedInputs, &mut NoRobot);
+    assert_eq!(version(shared), [0, 0, 0]);
 }
 
 #[test]

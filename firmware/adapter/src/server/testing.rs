@@ -47,6 +47,6 @@ pub fn server_with(
     watchdog: super::Watchdog,
 ) -> (&'static super::Server<'static, crate::device::Device<'static>>, &'static RecordingPins) {
     let pins: &'static RecordingPins = Box::leak(Box::default());
-    let device = Box::leak(Box::new(crate::device::Device::new(watchdog, crate::VERSION, pins)));
+    let device = Box::leak(Box::new(crate::device::Device::new(watchdog, pins)));
     (Box::leak(Box::new(super::Server::new(config, device))), pins)
 }

@@ -33,13 +33,11 @@ fn strict() -> Policy {
 #[test]
 fn captured_requests_get_these_exact_replies() {
     let mut image = Image::new();
-    image.set_version(&crate::VERSION);
-    let [major, minor, patch] =
-        [crate::VERSION.major, crate::VERSION.minor, crate::VERSION.patch].map(u16::to_be_bytes);
+    image.set_controller_version(&crate::io::Version { major: 2, minor: 0x0110, patch: 9 });
     #[rustfmt::skip]
     let want: [&[u8]; 6] = [
-        // 03, 6 bytes: registers 256-258 = the firmware version.
-        &[0x03, 0x06, major[0], major[1], minor[0], minor[1], patch[0], patch[1]],
+        // 03, 6 bytes: registers 256-258 = the robot controller's version, 2.272.9.
+        &[0x03, 0x06, 0x00, 0x02, 0x01, 0x10, 0x00, 0x09],
         // 01, 2 bytes: coils 16-25 all off.
         &[0x01, 0x02, 0x00, 0x00],
         // 05: echo.
