@@ -398,35 +398,34 @@ impl<'a> Response<'a> {
 
     /// Writes the PDU into `buf`; returns its length, or `None` if it does not fit.
     pub fn emit(&self, buf: &mut [u8]) -> Option<usize> {
-        let len = self.buffer_len();
-        let out = buf.get_mut(..len)?;
-        match *self {
+        // Every response is a head of at most 7 bytes (the function code
+        // and fixed fields), then the bytes it carries: one copy of each.
+        let code = self.code();
+        let (head, head_len, rest): ([u8; 7], usize, &[u8]) = match *self {
             Self::ReadCoils { values } | Self::ReadHoldingRegisters { values } => {
-                let (head, rest) = out.split_at_mut_checked(2)?;
-                head.copy_from_slice(&[self.code(), u8::try_from(values.len()).ok()?]);
-                rest.copy_from_slice(values);
+                ([code, u8::try_from(values.len()).ok()?, 0, 0, 0, 0, 0], 2, values)
             }
-            Self::Exception { exception, .. } => out.copy_from_slice(&[self.code(), exception.code()]),
-            Self::Diagnostics { sub_function, data } => {
-                let (head, rest) = out.split_at_mut_checked(diagnostics::HEADER_LEN)?;
-                let [hi, lo] = sub_function.code().to_be_bytes();
-                head.copy_from_slice(&[self.code(), hi, lo]);
-                rest.copy_from_slice(data);
-            }
-            Self::ReadDeviceIdentification { code, conformity, next_object_id, objects } => {
-                let (head, rest) = out.split_at_mut_checked(identification::HEADER_LEN)?;
-                let (more, next) = next_object_id.map_or((0x00, 0x00), |next| (MORE_FOLLOWS, next));
-                let mei = identification::MEI_TYPE;
-                head.copy_from_slice(&[self.code(), mei, code.code(), conformity, more, next, objects.count()]);
-                rest.copy_from_slice(objects.as_bytes());
-            }
+            Self::Exception { exception, .. } => ([code, exception.code(), 0, 0, 0, 0, 0], 2, &[]),
             Self::WriteSingleCoil { address, value } => {
-                emit_fixed(out, self.code(), address, if value { COIL_ON } else { COIL_OFF })
+                fixed_head(code, address, if value { COIL_ON } else { COIL_OFF })
             }
             Self::WriteSingleRegister { address: a, value: b }
             | Self::WriteMultipleCoils { start: a, quantity: b }
-            | Self::WriteMultipleRegisters { start: a, quantity: b } => emit_fixed(out, self.code(), a, b),
-        }
+            | Self::WriteMultipleRegisters { start: a, quantity: b } => fixed_head(code, a, b),
+            Self::Diagnostics { sub_function, data } => {
+                let [hi, lo] = sub_function.code().to_be_bytes();
+                ([code, hi, lo, 0, 0, 0, 0], diagnostics::HEADER_LEN, data)
+            }
+            Self::ReadDeviceIdentification { code: read, conformity, next_object_id, objects } => {
+                let (more, next) = next_object_id.map_or((0x00, 0x00), |next| (MORE_FOLLOWS, next));
+                let head = [code, identification::MEI_TYPE, read.code(), conformity, more, next, objects.count()];
+                (head, identification::HEADER_LEN, objects.as_bytes())
+            }
+        };
+        let len = head_len.checked_add(rest.len())?;
+        let (out_head, out_rest) = buf.get_mut(..len)?.split_at_mut_checked(head_len)?;
+        out_head.copy_from_slice(head.get(..head_len)?);
+        out_rest.copy_from_slice(rest);
         Some(len)
     }
 
@@ -436,12 +435,10 @@ impl<'a> Response<'a> {
     }
 }
 
-fn emit_fixed(out: &mut [u8], code: u8, a: u16, b: u16) {
-    if let Some(first) = out.first_mut() {
-        *first = code;
-    }
-    put_be_u16(out, 1, a);
-    put_be_u16(out, 3, b);
+/// The head of a fixed-length response: the code and two 16-bit fields.
+fn fixed_head(code: u8, a: u16, b: u16) -> ([u8; 7], usize, &'static [u8]) {
+    let ([a_hi, a_lo], [b_hi, b_lo]) = (a.to_be_bytes(), b.to_be_bytes());
+    ([code, a_hi, a_lo, b_hi, b_lo, 0, 0], 5, &[])
 }
 
 #[cfg(test)]
