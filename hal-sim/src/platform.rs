@@ -62,7 +62,7 @@ impl SimPlatform {
 
 impl Platform for SimPlatform {
     fn model(&self) -> &'static str {
-        "hal-sim"
+        crate::MODEL
     }
 
     fn mac(&self) -> [u8; 6] {

@@ -53,6 +53,9 @@ pub const SETTINGS: Settings = Settings {
 /// The Modbus server over the device.
 type ModbusServer = Server<'static, Device<'static>>;
 
+/// The board, as Read Device Identification (ModelName) and `/api/status` name it.
+const MODEL: &str = "mps2-an386";
+
 /// The HTTP API over the settings store and this board.
 #[cfg(feature = "http")]
 type Api = adapter::http::Http<'static, Controller<'static, platform::SettingsFlash, platform::Mps2>>;
@@ -92,10 +95,10 @@ fn main() -> ! {
     let (stack, runner) = embassy_net::new(ethernet, config, RESOURCES.init(StackResources::new()), seed);
 
     static DEVICE: StaticCell<Device<'static>> = StaticCell::new();
-    let device: &'static Device<'static> = DEVICE.init(Device::new(settings.watchdog(), &LEDS));
+    let device: &'static Device<'static> = DEVICE.init(Device::new(settings.watchdog(), MODEL, &LEDS));
     device.drive_outputs();
     static SERVER: StaticCell<ModbusServer> = StaticCell::new();
-    let server: &'static ModbusServer = SERVER.init(Server::new(settings.server_config(), device));
+    let server: &'static ModbusServer = SERVER.init(Server::new(settings.server_config(mac), device));
 
     #[cfg(feature = "http")]
     let api: &'static Api = {

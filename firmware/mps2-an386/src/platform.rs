@@ -91,7 +91,7 @@ impl Mps2 {
 
 impl Platform for Mps2 {
     fn model(&self) -> &'static str {
-        "mps2-an386"
+        crate::MODEL
     }
 
     fn mac(&self) -> [u8; 6] {

@@ -88,7 +88,7 @@ impl Nucleo {
 
 impl Platform for Nucleo {
     fn model(&self) -> &'static str {
-        "nucleo-f429zi"
+        crate::MODEL
     }
 
     fn mac(&self) -> [u8; 6] {

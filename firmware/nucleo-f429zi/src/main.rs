@@ -36,6 +36,9 @@ pub const SETTINGS: Settings = Settings::DEFAULT.with_build_env();
 /// The Modbus server over the device.
 pub type ModbusServer = Server<'static, Device<'static>>;
 
+/// The board, as Read Device Identification (ModelName) and `/api/status` name it.
+pub const MODEL: &str = "nucleo-f429zi";
+
 #[cfg(not(feature = "sim-robot"))]
 type BoardRobot = adapter::io::NoRobot;
 #[cfg(feature = "sim-robot")]
@@ -67,10 +70,10 @@ async fn main(spawner: Spawner) {
     let settings: &'static Settings = &SETTINGS;
 
     static DEVICE: StaticCell<Device<'static>> = StaticCell::new();
-    let device = &*DEVICE.init(Device::new(settings.watchdog(), board.outputs));
+    let device = &*DEVICE.init(Device::new(settings.watchdog(), MODEL, board.outputs));
     device.drive_outputs();
     static SERVER: StaticCell<ModbusServer> = StaticCell::new();
-    let server = &*SERVER.init(Server::new(settings.server_config(), device));
+    let server = &*SERVER.init(Server::new(settings.server_config(board.mac), device));
 
     let config = adapter::net::initial_config(&settings.network);
     let (stack, runner) = embassy_net::new(board.ethernet, config, net::resources(), board.seed);
