@@ -13,6 +13,7 @@ use core::fmt;
 
 use super::diagnostics::{self, Diagnostic};
 use super::identification::{self, MORE_FOLLOWS, Objects, ReadDeviceIdCode};
+use super::mbap::MAX_PDU_LEN;
 use super::{Exception, be_u16, put_be_u16};
 
 code_table! {
@@ -194,7 +195,9 @@ impl<'a> Request<'a> {
             },
             FunctionCode::Unknown(_) => return Err(Exception::IllegalFunction),
         };
-        request.ok_or(Exception::IllegalDataValue)
+        // No PDU is longer than an ADU holds (V1.1b3, 4.1): only Return
+        // Query Data's "any" data could be, were the bytes not from a frame.
+        request.filter(|_| pdu.len() <= MAX_PDU_LEN).ok_or(Exception::IllegalDataValue)
     }
 
     /// `start | quantity | byte count | values`, with the byte count matching
@@ -309,7 +312,11 @@ impl core::error::Error for Malformed {}
 
 impl<'a> Response<'a> {
     /// Parses a response PDU (a client's side; used by tests and tools).
+    /// None is longer than an ADU holds ([`MAX_PDU_LEN`]).
     pub fn parse(pdu: &'a [u8]) -> Result<Self, Malformed> {
+        if pdu.len() > MAX_PDU_LEN {
+            return Err(Malformed);
+        }
         let (&code, data) = pdu.split_first().ok_or(Malformed)?;
         if code & EXCEPTION_FLAG != 0 {
             // This server sends only the exceptions it knows.
@@ -771,13 +778,21 @@ mod tests {
                 assert_eq!(request(sub, data), Err(Exception::IllegalDataValue), "{sub:#x} {data:02x?}");
             }
         }
-        // Return Query Data echoes any data, none up to the largest PDU.
+        // Return Query Data echoes any data, none up to the largest PDU; not
+        // beyond it (found by the codec fuzz target: an echo must fit a reply).
         for len in [0, 1, 2, 3, MAX_PDU_LEN - 3] {
             let data = vec![0x5a; len];
             let parsed = request(0x00, &data).unwrap();
             assert_eq!(parsed, Request::Diagnostics { sub_function: Diagnostic::ReturnQueryData, data: &data });
             assert_eq!(parsed.buffer_len(), 3 + len);
         }
+        for len in [MAX_PDU_LEN - 2, 312] {
+            assert_eq!(request(0x00, &vec![0; len]), Err(Exception::IllegalDataValue), "{len} bytes of data");
+        }
+        let longest = [&[0x08, 0x00, 0x00][..], &[0u8; MAX_PDU_LEN - 3]].concat();
+        assert!(Response::parse(&longest).is_ok());
+        let longer = [&longest[..], &[0]].concat();
+        assert_eq!(Response::parse(&longer), Err(Malformed), "a reply no ADU holds");
         // Every other sub-function is not implemented: 01, whatever its data.
         for sub in [0x01, 0x02, 0x03, 0x04, 0x10, 0x11, 0x13, 0x14, 0x15, 0x0100, 0x0a00, 0xffff] {
             assert_eq!(request(sub, &[0, 0]), Err(Exception::IllegalFunction), "{sub:#06x}");
