@@ -179,7 +179,11 @@ impl<'a> Request<'a> {
                 };
                 match sub_function {
                     Diagnostic::Unknown(_) => return Err(Exception::IllegalFunction),
-                    Diagnostic::ReturnQueryData => Some(Self::Diagnostics { sub_function, data }),
+                    // "Any" data, as long as no ADU is longer than 260 bytes (V1.1b3, 4.1):
+                    // the bytes might not come from a frame, and the echo must fit one.
+                    Diagnostic::ReturnQueryData => {
+                        (pdu.len() <= MAX_PDU_LEN).then_some(Self::Diagnostics { sub_function, data })
+                    }
                     _ => (data == diagnostics::ZERO_DATA).then_some(Self::Diagnostics { sub_function, data }),
                 }
             }
@@ -195,9 +199,7 @@ impl<'a> Request<'a> {
             },
             FunctionCode::Unknown(_) => return Err(Exception::IllegalFunction),
         };
-        // No PDU is longer than an ADU holds (V1.1b3, 4.1): only Return
-        // Query Data's "any" data could be, were the bytes not from a frame.
-        request.filter(|_| pdu.len() <= MAX_PDU_LEN).ok_or(Exception::IllegalDataValue)
+        request.ok_or(Exception::IllegalDataValue)
     }
 
     /// `start | quantity | byte count | values`, with the byte count matching
