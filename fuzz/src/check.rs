@@ -7,7 +7,8 @@ use std::sync::Mutex;
 use adapter::io::{OutputPins, Outputs};
 use adapter::map::{Image, WritePolicy};
 use adapter::server::{Counters, Policy};
-use test_support::reply::{Answer, Refusals, WRITE_FUNCTIONS, check_reply};
+use test_support::framer::is_modbus;
+use test_support::reply::{Answer, CLEAR_COUNTERS, Refusals, check_reply, is_write};
 
 /// What `policy` refuses, in the reference's terms.
 pub fn refusals(policy: &Policy) -> Refusals {
@@ -28,37 +29,67 @@ pub fn reply(request: &[u8], reply: &[u8], policy: &Policy) -> Answer {
     answer
 }
 
-/// The diagnostics counters a session over these frames must leave: every
-/// Modbus frame counted, each exception by its code, a discarded frame as a
-/// bad protocol id, a lost stream as a bad length, and nothing else.
-pub fn expected_counters(
-    requests: &[&[u8]],
-    replies: &[Vec<u8>],
-    discarded: usize,
-    lost: bool,
-    policy: &Policy,
-) -> Counters {
-    let mut c = Counters {
-        requests: requests.len() as u32,
-        bad_protocol: discarded as u32,
-        bad_length: u32::from(lost),
-        ..Counters::default()
-    };
-    for (request, reply) in requests.iter().zip(replies) {
-        if reply[7] & 0x80 == 0 {
+/// The diagnostics counters a session over `frames` (every whole frame, in
+/// order) must leave, the Modbus ones answered by `replies`: every Modbus
+/// frame counted, each exception by its code, a discarded frame as a bad
+/// protocol id, a lost stream as a bad length, and nothing else; all of
+/// them 0 after an acknowledged Clear Counters, which then counts itself.
+///
+/// On the way, each Diagnostics count must be what the counters held when
+/// it was asked for ([`serial_line_count`]).
+pub fn counters(frames: &[&[u8]], replies: &[Vec<u8>], lost: bool, policy: &Policy) -> Counters {
+    let mut c = Counters::default();
+    let mut replies = replies.iter();
+    for frame in frames {
+        if !is_modbus(frame) {
+            c.bad_protocol += 1;
             continue;
         }
-        let write = WRITE_FUNCTIONS.contains(&request[7]);
-        match reply[8] {
-            0x01 if write && policy.read_only => c.refused_writes += 1,
-            0x01 => c.bad_function += 1,
-            0x02 => c.bad_address += 1,
-            0x03 => c.bad_value += 1,
-            0x0b => c.other_unit += 1,
-            other => panic!("exception {other:#04x} to {request:02x?}"),
+        let reply = replies.next().expect("a reply to every Modbus frame");
+        let (pdu, answer) = (&frame[7..], &reply[7..]);
+        match answer {
+            [0x08, hi, lo, count @ ..] if pdu.len() == 5 => {
+                let sub = u16::from_be_bytes([*hi, *lo]);
+                if sub == CLEAR_COUNTERS {
+                    c = Counters::default();
+                } else if let Some(want) = serial_line_count(&c, sub) {
+                    assert_eq!(count, want.to_be_bytes(), "count {sub:#06x} to {frame:02x?}");
+                }
+            }
+            [code, exception] if code & 0x80 != 0 => match exception {
+                0x01 if is_write(pdu) && policy.read_only => c.refused_writes += 1,
+                0x01 => c.bad_function += 1,
+                0x02 => c.bad_address += 1,
+                0x03 => c.bad_value += 1,
+                0x0b => c.other_unit += 1,
+                other => panic!("exception {other:#04x} to {frame:02x?}"),
+            },
+            _ => {}
         }
+        c.requests += 1;
     }
+    c.bad_length = u32::from(lost);
     c
+}
+
+/// What Diagnostics' counter `sub` returns from the counters `c`, as
+/// docs/data-map.md maps the serial-line counters to the adapter's: bus
+/// messages are every whole frame, communication errors the lost streams,
+/// exceptions every exception, server messages the requests for this
+/// unit, no response the frames skipped, overrun the sessions evicted.
+pub fn serial_line_count(c: &Counters, sub: u16) -> Option<u16> {
+    let count = match sub {
+        0x0b => c.requests.wrapping_add(c.bad_protocol),
+        0x0c => c.bad_length,
+        0x0d => [c.bad_function, c.bad_address, c.bad_value, c.refused_writes, c.other_unit]
+            .into_iter()
+            .fold(0u32, u32::wrapping_add),
+        0x0e => c.requests.saturating_sub(c.other_unit),
+        0x0f => c.bad_protocol,
+        0x12 => c.evictions,
+        _ => return None,
+    };
+    Some(count as u16)
 }
 
 /// Output pins that remember what they were last told to drive.

@@ -60,7 +60,7 @@ impl Backend for FuzzBackend<'_> {
             return Err(Refusal::Storage);
         }
         let old = self.settings.replace(*settings);
-        self.server.set_config(settings.server_config());
+        self.server.set_config(settings.server_config(MAC));
         self.applied.set(self.applied.get() + 1);
         Ok(old.reboot_required(settings))
     }
@@ -94,7 +94,7 @@ impl Backend for FuzzBackend<'_> {
     }
 
     fn mac(&self) -> [u8; 6] {
-        [0x02, 0, 0, 0, 0, 1]
+        MAC
     }
 
     fn network(&self) -> NetworkStatus {
@@ -162,15 +162,18 @@ const BOUND: Duration = Duration::from_secs(
     http::REQUEST_TIMEOUT.as_secs() + http::WRITE_TIMEOUT.as_secs() + http::AUTH_FAILURE_DELAY.as_secs(),
 );
 
+/// The backend's MAC.
+const MAC: [u8; 6] = [0x02, 0, 0, 0, 0, 1];
+
 /// Serves `data` (see [`HttpInput`]) as one connection and checks it.
 pub fn http(data: &[u8]) {
     let input = HttpInput::parse(data);
     let flag = |bit: u8| input.flags & bit != 0;
     MockDriver::get().reset();
     let pins = Pins::default();
-    let device = Device::new(Watchdog::OFF, adapter::VERSION, &pins);
+    let device = Device::new(Watchdog::OFF, "fuzz", &pins);
     let settings = initial_settings();
-    let server = Server::new(settings.server_config(), &device);
+    let server = Server::new(settings.server_config(MAC), &device);
     let password = flag(HTTP_PASSWORD_SET).then(|| PASSWORD.as_bytes().to_vec());
     let backend = FuzzBackend {
         server: &server,

@@ -25,7 +25,9 @@ use core::task::Poll;
 
 use adapter::device::Device;
 use adapter::map::Image;
-use adapter::server::{self, Config, Error, Outcome, Policy, Server, Watchdog, handler};
+use adapter::server::{
+    self, Config, Context, Counters, Error, Identity, Outcome, Policy, Server, Stats, Watchdog, handler,
+};
 use modbus::mbap::{self, MAX_ADU_LEN};
 use modbus::{Exception, Request, Response};
 use test_support::duplex::poll_once;
@@ -39,10 +41,17 @@ pub use mdns::{MdnsInput, mdns};
 pub use storage::{StoreInput, record, store};
 
 /// The server's configuration as the tests set it: no idle timeout (the mock
-/// clock never moves, but a session must not depend on that), the policy under test.
+/// clock never moves, but a session must not depend on that), the policy
+/// under test, the device name [`NAME`].
 fn config(policy: Policy) -> Config {
-    Config { policy, idle_timeout: None, ..Config::DEFAULT }
+    let name = adapter::settings::Name::parse(NAME).unwrap_or(adapter::settings::Name::UNSET);
+    Config { policy, idle_timeout: None, name, ..Config::DEFAULT }
 }
+
+/// The board the targets' devices say they are (Read Device Identification).
+pub const MODEL: &str = "fuzz-board";
+/// Their device name.
+pub const NAME: &str = "fuzz-4";
 
 /// Bound on polls of one session: every `Pending` must come from the
 /// connection, which stalls at most once per read or write.
@@ -53,7 +62,7 @@ pub fn session(data: &[u8]) {
     let input = SessionInput::parse(data);
     let policy = input.policy();
     let pins = Pins::default();
-    let device = Device::new(Watchdog::OFF, adapter::VERSION, &pins);
+    let device = Device::new(Watchdog::OFF, MODEL, &pins);
     let server = Server::new(config(policy), &device);
     let (wire, mut end) = connection::connect(&input);
     let result = {
@@ -84,22 +93,35 @@ pub fn session(data: &[u8]) {
 
     // The model: a fresh server that sees only the acknowledged writes and
     // the reads. At each step it holds what the session's server should
-    // hold, so it must give the very same reply.
+    // hold, so it must give the very same reply. (Diagnostics' counters are
+    // not the model server's: check::counters follows them, below.)
     let model_pins = Pins::default();
-    let model_device = Device::new(Watchdog::OFF, adapter::VERSION, &model_pins);
+    let model_device = Device::new(Watchdog::OFF, MODEL, &model_pins);
     let model = Server::new(config(policy), &model_device);
+    let scratch = Stats::new();
+    let name = config(policy).name;
+    let context = Context { identity: Identity { model: MODEL, name: &name }, stats: &scratch };
     let mut expected = [0u8; MAX_ADU_LEN];
     for (request, reply) in requests.iter().zip(&replies) {
-        if let Answer::Read | Answer::Write = check::reply(request, reply, &policy) {
+        let answer = check::reply(request, reply, &policy);
+        if let Answer::Read | Answer::Write | Answer::Identification = answer {
             let outcome = model.respond(request, &mut expected);
             let Outcome::Reply { len, exception, .. } = outcome else { panic!("the model discarded {request:02x?}") };
             assert_eq!(exception, None, "replaying {request:02x?} on the model fails");
             assert_eq!(&expected[..len], reply, "the model answers {request:02x?} otherwise");
+        } else if answer == Answer::Diagnostics {
+            // A count, or their clear: check::counters follows the counters,
+            // below. Return Query Data's echo is the model's too.
+            if request[8..10] == [0, 0] {
+                let outcome = model.respond(request, &mut expected);
+                let Outcome::Reply { len, .. } = outcome else { panic!("the model discarded {request:02x?}") };
+                assert_eq!(&expected[..len], reply, "the model echoes {request:02x?} otherwise");
+            }
         } else {
             // Refused: the same refusal from the model, and nothing changed.
             let before = model_device.read(Clone::clone);
             let mut copy = before.clone();
-            let outcome = handler::respond(request, &mut expected, &mut copy, &policy);
+            let outcome = handler::respond(request, &mut expected, &mut copy, &policy, &context);
             let Outcome::Reply { len, .. } = outcome else { panic!("the handler discarded {request:02x?}") };
             assert_eq!(&expected[..len], reply, "the model refuses {request:02x?} otherwise");
             assert_eq!(copy, before, "a refused request {request:02x?} changed the map");
@@ -109,7 +131,8 @@ pub fn session(data: &[u8]) {
     assert!(image == model_device.read(Clone::clone), "the map holds exactly the acknowledged writes");
     check::pins_follow_map(&pins, &image);
     let lost = framed.bad_length.is_some();
-    let expected = check::expected_counters(&requests, &replies, framed.skipped(), lost, &policy);
+    let expected = check::counters(&framed.frames, &replies, lost, &policy);
+    assert_eq!(scratch.snapshot(), Counters::default(), "a refused request touched the counters");
     assert_eq!(server.stats().snapshot(), expected, "the diagnostics counters");
 }
 
@@ -119,11 +142,14 @@ pub fn handler(data: &[u8]) {
     let input = HandlerInput::parse(data);
     let policy = input.policy();
     let mut image = Image::new();
-    image.set_version(&adapter::VERSION);
+    // The handler counts nothing (the device does): Diagnostics reads 0s.
+    let stats = Stats::new();
+    let name = config(policy).name;
+    let context = Context { identity: Identity { model: MODEL, name: &name }, stats: &stats };
     let mut reply = [0xa5u8; MAX_ADU_LEN];
     for frame in input.frames() {
         let before = image.clone();
-        let outcome = handler::respond(frame, &mut reply, &mut image, &policy);
+        let outcome = handler::respond(frame, &mut reply, &mut image, &policy, &context);
         let protocol_id = framer::protocol_id(frame).unwrap_or(0);
         let whole = matches!(framer::next(frame), Next::Frame(_));
         if !whole {
@@ -158,8 +184,11 @@ pub fn handler(data: &[u8]) {
                 assert!(image == before, "a refused request changed the map");
             }
             None => {
-                if matches!(function, 0x01 | 0x03) {
-                    assert!(image == before, "a read changed the map");
+                if matches!(function, 0x01 | 0x03 | 0x08 | 0x2b) {
+                    assert!(image == before, "a read, a diagnostic or an identification changed the map");
+                }
+                if let [0x08, 0x00, 0x0b..=0x0f | 0x12, count @ ..] = &out[7..] {
+                    assert_eq!(count, [0, 0], "a count from counters that count nothing: {out:02x?}");
                 }
             }
         }
@@ -176,7 +205,17 @@ pub fn handler(data: &[u8]) {
 pub fn codec(data: &[u8]) {
     let mut buf = [0xa5u8; MAX_ADU_LEN + 8];
     let pdu = data;
-    let known = matches!(pdu.first(), Some(0x01 | 0x03 | 0x05 | 0x06 | 0x0f | 0x10));
+    // What the codec implements (V1.1b3, 6.8.1 and 6.21): the six functions of
+    // the map, Diagnostics' eight sub-functions, Read Device Identification
+    // (2B with MEI type 0E). Anything else of theirs is 03.
+    let diagnostic = |sub: u16| [0x00, 0x0a, 0x0b, 0x0c, 0x0d, 0x0e, 0x0f, 0x12].contains(&sub);
+    let known = match pdu {
+        [0x01 | 0x03 | 0x05 | 0x06 | 0x0f | 0x10, ..] => true,
+        [0x08, hi, lo, ..] => diagnostic(u16::from_be_bytes([*hi, *lo])),
+        [0x08, ..] => true,
+        [0x2b, mei, ..] => *mei == 0x0e,
+        _ => false,
+    };
     match Request::parse(pdu) {
         Ok(request) => {
             assert!(known);

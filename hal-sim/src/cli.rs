@@ -226,7 +226,9 @@ mod tests {
         assert_eq!(o.tap, "tap0");
         assert_eq!(o.settings, factory_defaults());
         assert_eq!(o.settings.network.address, Some(DEFAULT_ADDRESS));
-        assert_eq!(o.settings.server_config(), adapter::server::Config::DEFAULT);
+        let config = o.settings.server_config(crate::MAC);
+        assert_eq!(config, adapter::server::Config { name: config.name, ..adapter::server::Config::DEFAULT });
+        assert_eq!(config.name.as_str(), "mbio-53494d", "the default name, from the MAC");
         assert_eq!(o.control, None);
         assert_eq!(o.robot, Mode::Demo);
         assert_eq!(o.state, None);
@@ -275,7 +277,7 @@ mod tests {
         let network = o.settings.network;
         assert_eq!(network.address, Some(Cidr { address: [198, 18, 1, 9], prefix_len: 16 }));
         assert_eq!(network.gateway.map(|g| g.0), Some([198, 18, 0, 1]));
-        let config = o.settings.server_config();
+        let config = o.settings.server_config(crate::MAC);
         assert_eq!(config.port, 1502);
         assert_eq!(config.max_connections, 3);
         assert_eq!(config.idle_timeout, None);
@@ -283,7 +285,7 @@ mod tests {
         assert_eq!(o.control, Some(PathBuf::from("/tmp/c.sock")));
         assert_eq!(o.robot, Mode::Idle);
         let five = run(&["--tap", "t", "--idle-timeout", "5"]).unwrap();
-        assert_eq!(five.settings.server_config().idle_timeout, Some(Duration::from_secs(5)));
+        assert_eq!(five.settings.server_config(crate::MAC).idle_timeout, Some(Duration::from_secs(5)));
     }
 
     #[test]
@@ -363,12 +365,12 @@ mod tests {
         let watchdog = o.settings.watchdog();
         assert_eq!(watchdog.timeout, Some(Duration::from_millis(500)));
         assert_eq!(watchdog.safe_state, SafeState { digital: 0x8001, tool: 3, analog: [4000, 0] });
-        let access = o.settings.server_config().access;
+        let access = o.settings.server_config(crate::MAC).access;
         assert!(access.may_connect([198, 18, 0, 200]) && access.may_connect([10, 0, 0, 7]));
         assert!(!access.may_connect([10, 0, 0, 8]));
         assert!(access.may_write([198, 18, 0, 9]) && !access.may_write([198, 18, 0, 1]));
         assert_eq!(run(&["--tap", "t", "--watchdog-ms", "0"]).unwrap().settings.watchdog().timeout, None);
-        assert_eq!(run(&["--tap", "t"]).unwrap().settings.server_config().access, Access::OPEN);
+        assert_eq!(run(&["--tap", "t"]).unwrap().settings.server_config(crate::MAC).access, Access::OPEN);
     }
 
     #[test]

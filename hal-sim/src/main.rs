@@ -47,6 +47,8 @@ const EXIT_USAGE: u8 = 2;
 const EXIT_UNAVAILABLE: u8 = 1;
 /// The simulated device's MAC: locally administered, unicast.
 pub(crate) const MAC: [u8; 6] = [0x02, 0x4d, 0x42, 0x53, 0x49, 0x4d];
+/// The board, as Read Device Identification (ModelName), `/api/status` and mDNS's TXT name it.
+pub(crate) const MODEL: &str = "hal-sim";
 
 fn main() -> ExitCode {
     init_logging();
@@ -132,10 +134,9 @@ fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>, fl
     let (stack, runner) = embassy_net::new(device, net_config, resources, RandomState::new().build_hasher().finish());
 
     let outputs: &'static OutputLatch = Box::leak(Box::new(OutputLatch::new()));
-    let device: &'static Device<'static> =
-        Box::leak(Box::new(Device::new(settings.watchdog(), adapter::VERSION, outputs)));
+    let device: &'static Device<'static> = Box::leak(Box::new(Device::new(settings.watchdog(), MODEL, outputs)));
     device.drive_outputs();
-    let server: &'static ModbusServer = Box::leak(Box::new(Server::new(settings.server_config(), device)));
+    let server: &'static ModbusServer = Box::leak(Box::new(Server::new(settings.server_config(MAC), device)));
     let board: &'static Board = Box::leak(Box::new(Board::new(device, outputs, SimRobot::new(options.robot))));
     // No API (`--http-port 0`): no port for `modbus.port` to avoid (0 is never a Modbus port).
     let platform = SimPlatform::new(stack, settings.network.mode, options.http_port.unwrap_or(0));
@@ -212,7 +213,7 @@ fn start(
     }
     spawner.spawn(platform::reboot_task(args)?);
     let services = mdns::Services {
-        model: platform::MODEL,
+        model: MODEL,
         version: adapter::VERSION,
         modbus_port: server.config().port,
         http_port: options.http_port,

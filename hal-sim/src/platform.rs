@@ -24,9 +24,6 @@ use embassy_time::{Duration, Instant, Timer};
 
 use crate::state::Flash;
 
-/// The model hal-sim reports (`/api/status`, mDNS TXT).
-pub(crate) const MODEL: &str = "hal-sim";
-
 /// The API's backend in hal-sim: the settings store over the state file.
 pub type SimController = Controller<'static, Flash, SimPlatform>;
 
@@ -67,7 +64,7 @@ impl SimPlatform {
 
 impl Platform for SimPlatform {
     fn model(&self) -> &'static str {
-        MODEL
+        crate::MODEL
     }
 
     fn mac(&self) -> [u8; 6] {

@@ -9,7 +9,9 @@
 use std::cell::{Cell, RefCell};
 
 use adapter::device::Device;
-use adapter::io::{ANALOG_CHANNELS, AnalogType, InputPins, OutputPins, Outputs, Robot, RobotStatus, Telemetry};
+use adapter::io::{
+    ANALOG_CHANNELS, AnalogType, InputPins, OutputPins, Outputs, Robot, RobotStatus, Telemetry, Version,
+};
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use sim_robot::{Event, Refused, SimRobot};
@@ -168,6 +170,10 @@ impl Robot for RobotReader<'_> {
 
     fn telemetry(&mut self) -> Telemetry {
         self.0.borrow_mut().telemetry()
+    }
+
+    fn version(&mut self) -> Version {
+        self.0.borrow_mut().version()
     }
 }
 

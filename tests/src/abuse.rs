@@ -8,17 +8,28 @@
 //! registers 128-255 and the outputs (registers 1, 16-19, 22, the analog
 //! input types 5 and 7, and their coils 16-31 and 38-43). Every other point
 //! has a source (pins, robot, boot) that re-asserts it, so under the `seed`
-//! policy an acknowledged write there lasts at most 100 ms.
+//! policy an acknowledged write there lasts at most 100 ms. The replies of
+//! Diagnostics and Read Device Identification, which answer from hal-sim's
+//! counters and name rather than the map, are checked against test-support's
+//! reference only.
 
 use std::time::Duration;
 
 use adapter::map::Image;
-use adapter::server::{Outcome, Policy, handler};
+use adapter::server::{Identity, Outcome, Policy, Stats, handler};
+use adapter::settings::Name;
 use modbus::mbap::MAX_ADU_LEN;
 use test_support::framer::{adu, split_replies};
+use test_support::reply::{Refusals, check_reply};
 use tokio::io::{AsyncRead, AsyncReadExt};
 use tokio_modbus::client::Context;
 use tokio_modbus::prelude::Reader;
+
+/// The handler's context for the ledger's model, which answers only the map's functions.
+fn map_only() -> handler::Context<'static> {
+    static STATS: Stats = Stats::new();
+    handler::Context { identity: Identity { model: "hal-sim", name: &Name::UNSET }, stats: &STATS }
+}
 
 /// The writes a server acknowledged, applied in order to a model map.
 #[derive(Debug, Clone)]
@@ -38,7 +49,8 @@ impl Ledger {
     /// A fresh map under hal-sim's default policy (every unit id, `seed` writes).
     pub fn new() -> Self {
         let mut model = Image::new();
-        model.set_version(&adapter::VERSION);
+        // hal-sim's robot is the simulated one: its controller's version.
+        model.set_controller_version(&sim_robot::CONTROLLER_VERSION);
         Self { model, policy: Policy::default(), acknowledged: 0 }
     }
 
@@ -57,9 +69,13 @@ impl Ledger {
         assert_eq!(reply[..2], request[..2], "transaction id of the reply to {request:02x?}");
         assert_eq!(reply[2..4], [0, 0], "protocol id of the reply to {request:02x?}");
         assert_eq!(reply[6], request[6], "unit id of the reply to {request:02x?}");
+        if matches!(request.get(7), Some(0x08 | 0x2b)) {
+            check_reply(request, reply, &Refusals::default());
+            return;
+        }
         let mut expected = [0u8; MAX_ADU_LEN];
         let mut next = self.model.clone();
-        let outcome = handler::respond(request, &mut expected, &mut next, &self.policy);
+        let outcome = handler::respond(request, &mut expected, &mut next, &self.policy, &map_only());
         let Outcome::Reply { len, exception, .. } = outcome else {
             panic!("a reply {reply:02x?} to a frame that is not Modbus: {request:02x?}");
         };
@@ -80,7 +96,7 @@ impl Ledger {
     /// that does not show the raw reply (tokio-modbus).
     pub fn acknowledge(&mut self, request: &[u8]) {
         let mut reply = [0u8; MAX_ADU_LEN];
-        let outcome = handler::respond(request, &mut reply, &mut self.model, &self.policy);
+        let outcome = handler::respond(request, &mut reply, &mut self.model, &self.policy, &map_only());
         assert!(matches!(outcome, Outcome::Reply { exception: None, .. }), "the model refuses {request:02x?}");
         self.acknowledged += 1;
     }
@@ -101,7 +117,7 @@ impl Ledger {
         let before: Vec<u16> = (start..).take(values.len()).map(|a| self.model.register(a)).collect();
         if now == values {
             let mut reply = [0u8; MAX_ADU_LEN];
-            let outcome = handler::respond(request, &mut reply, &mut self.model, &self.policy);
+            let outcome = handler::respond(request, &mut reply, &mut self.model, &self.policy, &map_only());
             assert!(matches!(outcome, Outcome::Reply { exception: None, .. }), "{request:02x?} applies");
             self.acknowledged += 1;
         } else {

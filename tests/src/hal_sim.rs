@@ -429,8 +429,14 @@ impl std::ops::DerefMut for WatchedClient {
     }
 }
 
+/// What hal-sim reports in registers 256-258: its simulated robot
+/// controller's version (not the firmware's, which is in 0x2B).
+pub fn controller_version() -> [u16; 3] {
+    sim_robot::CONTROLLER_VERSION.registers()
+}
+
 /// The firmware version the hal-sim binary was built from, as it reports it
-/// in registers 256-258 (from `hal-sim --version`: `hal-sim X (firmware A.B.C)`).
+/// in Read Device Identification (from `hal-sim --version`: `hal-sim X (firmware A.B.C)`).
 pub fn firmware_version() -> [u16; 3] {
     let output = std::process::Command::new(binary()).arg("--version").output().expect("hal-sim --version runs");
     let text = String::from_utf8_lossy(&output.stdout);

@@ -58,8 +58,11 @@ pub const LED0: u32 = 0x4002_8000;
 pub const MODBUS_PORT: u16 = 502;
 /// The firmware's HTTP port (the JSON API).
 pub const HTTP_PORT: u16 = 80;
-/// Registers 256-258: the firmware version.
-pub const VERSION_REGISTER: u16 = 256;
+/// Registers 256-259: the robot controller's version and the robot state.
+pub const ROBOT_REGISTERS: u16 = 256;
+/// What registers 256-259 hold on this image, which has no robot source:
+/// controller version 0.0.0, state NOT READY (15).
+pub const NO_ROBOT: [u16; 4] = [0, 0, 0, 15];
 /// The settings region (`SETTINGS` in firmware/mps2-an386/memory.x): the
 /// start of the PSRAM, the state file's first bytes.
 pub const SETTINGS: u32 = 0x2100_0000;
@@ -141,7 +144,8 @@ fn dep_info_sources(dep_info: &str) -> Vec<PathBuf> {
     paths
 }
 
-/// The firmware's version (the workspace's), as the image reports it in registers 256-258.
+/// The firmware's version (the workspace's), as the image reports it in
+/// Read Device Identification (MajorMinorRevision).
 pub fn firmware_version() -> [u16; 3] {
     let manifest = std::fs::read_to_string(workspace().join("Cargo.toml")).expect("Cargo.toml");
     let line = manifest.lines().find(|l| l.starts_with("version = ")).expect("a version line");
@@ -420,7 +424,7 @@ impl Qemu {
         crate::run_client(self.ns.as_ref(), test)
     }
 
-    /// A tokio-modbus client whose first request (the version registers) was
+    /// A tokio-modbus client whose first request (registers 256-259) was
     /// answered. Retries until [`READY_TIMEOUT`]: slirp accepts a connection
     /// before the firmware does, and resets it if the firmware is not ready.
     /// Call it inside [`Qemu::run`].
@@ -433,7 +437,7 @@ impl Qemu {
             }
             let attempt = async {
                 let mut ctx = tokio_modbus::client::tcp::connect(self.addr).await.map_err(|e| e.to_string())?;
-                match ctx.read_holding_registers(VERSION_REGISTER, 3).await {
+                match ctx.read_holding_registers(ROBOT_REGISTERS, 4).await {
                     Ok(Ok(_)) => Ok(ctx),
                     Ok(Err(exception)) => Err(format!("exception {exception:?}")),
                     Err(error) => Err(error.to_string()),

@@ -12,7 +12,7 @@
 use std::time::Duration;
 
 use system_tests::abuse::{Ledger, Rng, read_frames_until_close};
-use system_tests::hal_sim::{HalSim, end_within, firmware_version, read_frame};
+use system_tests::hal_sim::{HalSim, controller_version, end_within, read_frame};
 use test_support::framer::{self, adu};
 use tokio::io::AsyncWriteExt;
 use tokio_modbus::prelude::*;
@@ -55,9 +55,9 @@ fn finish(sim: &mut HalSim, ledger: &Ledger) {
     sim.run(|| async {
         let mut fresh = sim.connect().await;
         ledger.verify(&mut fresh).await;
-        // A `seed` write to the version registers lasts until the next refresh.
+        // A `seed` write to the controller version's registers lasts until the next refresh.
         tokio::time::sleep(AFTER_REFRESH).await;
-        assert_eq!(fresh.read_holding_registers(256, 3).await.unwrap().unwrap(), firmware_version());
+        assert_eq!(fresh.read_holding_registers(256, 3).await.unwrap().unwrap(), controller_version());
         drop(fresh);
         // hal-sim closes the fresh client's session before the nine come.
         tokio::time::sleep(Duration::from_millis(200)).await;

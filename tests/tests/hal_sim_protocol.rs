@@ -1,11 +1,11 @@
 //! hal-sim through tokio-modbus: every function code and exception, both
 //! views of the same points, both write policies, reserved addresses, the
-//! analog range checks, the unit id filter and the version registers
+//! analog range checks, the unit id filter and the controller version's registers
 //! (docs/data-map.md). Each test runs its own hal-sim in its own namespace.
 
 use std::time::Duration;
 
-use system_tests::hal_sim::{HalSim, firmware_version, read_frame};
+use system_tests::hal_sim::{HalSim, controller_version, read_frame};
 use test_support::framer::adu;
 use tokio::io::AsyncWriteExt;
 use tokio_modbus::prelude::*;
@@ -129,7 +129,7 @@ fn seed_policy_acknowledges_read_only_writes_and_the_source_wins() {
     sim.control_ok("set tool-di 2 1");
     sim.run(|| async {
         let mut ctx = sim.connect().await;
-        let version = firmware_version();
+        let version = controller_version();
         ctx.write_single_register(0, 0xaaaa).await.unwrap().unwrap();
         ctx.write_single_coil(0, false).await.unwrap().unwrap();
         ctx.write_single_register(21, 0b11_1101).await.unwrap().unwrap();
@@ -140,7 +140,7 @@ fn seed_policy_acknowledges_read_only_writes_and_the_source_wins() {
         assert_eq!(ctx.read_coils(0, 2).await.unwrap().unwrap(), [true, false]);
         assert_eq!(ctx.read_holding_registers(21, 1).await.unwrap().unwrap(), [0b10]);
         let robot = ctx.read_holding_registers(256, 6).await.unwrap().unwrap();
-        assert_eq!(robot[..3], version, "the boot-time version comes back");
+        assert_eq!(robot[..3], version, "the simulated controller's version comes back");
         assert_eq!(robot[3..], [1, 1, 0], "STANDBY, servo on, no e-stop: the robot wins");
         assert_eq!(ctx.read_coils(261, 1).await.unwrap().unwrap(), [false]);
     });
@@ -242,12 +242,13 @@ fn analog_outputs_are_range_checked() {
 }
 
 #[test]
-fn version_registers_hold_the_firmware_version() {
+fn registers_256_to_258_hold_the_simulated_controller_s_version() {
     let sim = HalSim::start(&["--robot", "idle"]);
     sim.run(|| async {
         let mut ctx = sim.connect().await;
         let version = ctx.read_holding_registers(256, 3).await.unwrap().unwrap();
-        assert_eq!(version, firmware_version());
+        assert_eq!(version, controller_version());
+        assert_ne!(version, system_tests::hal_sim::firmware_version(), "the controller's, not the adapter's");
     });
 }
 

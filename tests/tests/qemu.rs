@@ -11,9 +11,11 @@
 use std::borrow::Cow;
 use std::time::Duration;
 
-use system_tests::qemu::{self, LED0, Qemu, VERSION_REGISTER};
+use system_tests::qemu::{self, LED0, NO_ROBOT, Qemu, ROBOT_REGISTERS};
+use tokio::io::{AsyncReadExt as _, AsyncWriteExt as _};
 use tokio_modbus::ExceptionCode::{IllegalDataAddress, IllegalDataValue, IllegalFunction};
 use tokio_modbus::client::{Client as _, Context, Reader as _, Writer as _};
+use tokio_modbus::prelude::{ConformityLevel, ReadCode};
 use tokio_modbus::{ExceptionCode, FunctionCode, ProtocolError, Request, Response};
 
 /// Coils 0-265 and registers 0-435 (docs/data-map.md).
@@ -54,17 +56,56 @@ fn exception_of(reply: tokio_modbus::Result<Response>, function: FunctionCode) -
 }
 
 #[test]
-fn version_registers_report_the_firmware_version() {
+fn without_a_robot_the_controller_version_is_0_and_the_robot_not_ready() {
     let qemu = Qemu::slirp();
     qemu.run(|| async {
         let mut ctx = qemu.connect().await;
-        let version = ctx.read_holding_registers(VERSION_REGISTER, 3).await.unwrap().unwrap();
-        assert_eq!(version, qemu::firmware_version());
+        let robot = ctx.read_holding_registers(ROBOT_REGISTERS, 4).await.unwrap().unwrap();
+        assert_eq!(robot, NO_ROBOT, "controller version 0.0.0 (no robot source), NOT READY");
         assert_eq!(ctx.read_holding_registers(ROBOT_STATE, 1).await.unwrap().unwrap(), [NOT_READY]);
     });
     // slirp's DHCP server gave the firmware its address; the network policy
     // logs it at its next 100 ms tick, which may come after the first client.
     qemu.wait_for_log("Modbus TCP server at 10.0.2.15:502", Duration::from_secs(2));
+    qemu.finish();
+}
+
+#[test]
+fn the_image_identifies_itself_and_answers_diagnostics() {
+    let qemu = Qemu::slirp();
+    qemu.run(|| async {
+        let mut ctx = qemu.connect().await;
+        // Read Device Identification (2B/0E), as tokio-modbus asks for it.
+        let reply = ctx.read_device_identification(ReadCode::Regular, 0).await.unwrap().unwrap();
+        assert_eq!(reply.conformity_level, ConformityLevel::RegularIdentification, "0x82");
+        assert!(!reply.more_follows, "the regular set fits one reply");
+        let objects: Vec<(u8, String)> =
+            reply.device_id_objects.iter().map(|o| (o.id, o.value_as_str().expect("ASCII").to_owned())).collect();
+        let [major, minor, patch] = qemu::firmware_version();
+        let ids: Vec<u8> = objects.iter().map(|(id, _)| *id).collect();
+        assert_eq!(ids, [0, 1, 2, 3, 4, 5, 6], "{objects:?}");
+        assert_eq!(objects[2].1, format!("{major}.{minor}.{patch}"), "the firmware's version, not 256-258's");
+        assert_eq!(objects[5].1, "mps2-an386");
+        let name = &objects[6].1;
+        assert!(name.starts_with("mbio-") && name.len() == 11, "the default name from the MAC: {name}");
+        let unknown = ctx.read_device_identification(ReadCode::Specific, 7).await.unwrap();
+        assert_eq!(unknown, Err(IllegalDataAddress));
+        // Diagnostics (08), raw: tokio-modbus sends none of its sub-functions.
+        let mut raw = tokio::net::TcpStream::connect(qemu.addr()).await.unwrap();
+        for (pdu, want) in [
+            (&[0x08, 0x00, 0x00, 0xbe, 0xef][..], &[0x08, 0x00, 0x00, 0xbe, 0xef][..]), // echo
+            (&[0x08, 0x00, 0x0c, 0x00, 0x00], &[0x08, 0x00, 0x0c, 0x00, 0x00]),         // no stream lost
+            (&[0x08, 0x00, 0x0d, 0x00, 0x00], &[0x08, 0x00, 0x0d, 0x00, 0x01]),         // the 02 above
+            (&[0x08, 0x00, 0x01, 0x00, 0x00], &[0x88, 0x01]), // restart communications: not served
+        ] {
+            let mut frame = vec![0x00, 0x08, 0x00, 0x00, 0x00, pdu.len() as u8 + 1, 0x01];
+            frame.extend(pdu);
+            raw.write_all(&frame).await.unwrap();
+            let mut reply = vec![0u8; 7 + want.len()];
+            tokio::time::timeout(Duration::from_secs(5), raw.read_exact(&mut reply)).await.unwrap().unwrap();
+            assert_eq!(reply[7..], *want, "{pdu:02x?}");
+        }
+    });
     qemu.finish();
 }
 
@@ -85,9 +126,8 @@ fn the_whole_coil_and_register_spaces_read_in_blocks() {
 
         let registers = read_registers(&mut ctx, 0, REGISTERS, MAX_READ_REGISTERS).await;
         let mut expected = vec![0u16; usize::from(REGISTERS)];
-        let [major, minor, patch] = qemu::firmware_version();
-        expected[256..=259].copy_from_slice(&[major, minor, patch, NOT_READY]);
-        assert_eq!(registers, expected, "at boot: the version, NOT READY, zeros elsewhere");
+        expected[usize::from(ROBOT_STATE)] = NOT_READY;
+        assert_eq!(registers, expected, "at boot: NOT READY, zeros elsewhere (no controller version: no robot)");
         assert_eq!(read_registers(&mut ctx, 0, REGISTERS, 7).await, expected, "in small blocks too");
     });
     qemu.finish();
@@ -197,8 +237,8 @@ fn eight_connections_are_served_at_once() {
                     ctx.write_single_register(register, value).await.unwrap().unwrap();
                     let read = ctx.read_holding_registers(register, 1).await.unwrap().unwrap();
                     assert_eq!(read, [value], "connection {i}, round {round}");
-                    let version = ctx.read_holding_registers(VERSION_REGISTER, 3).await.unwrap().unwrap();
-                    assert_eq!(version, qemu::firmware_version());
+                    let robot = ctx.read_holding_registers(ROBOT_REGISTERS, 4).await.unwrap().unwrap();
+                    assert_eq!(robot, NO_ROBOT);
                 }
                 ctx
             });

@@ -12,7 +12,7 @@ use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use system_tests::qemu::{self, Qemu, SETTINGS, SETTINGS_LEN, VERSION_REGISTER};
+use system_tests::qemu::{self, NO_ROBOT, Qemu, ROBOT_REGISTERS, SETTINGS, SETTINGS_LEN};
 use tokio_modbus::client::{Reader as _, tcp};
 use tokio_modbus::{ExceptionCode, Slave};
 
@@ -74,10 +74,11 @@ fn boot(state: &std::path::Path) -> Qemu {
     qemu
 }
 
-/// What unit `unit` gets for a read of the version registers.
+/// What unit `unit` gets for a read of registers 256-259 (the controller's
+/// version and the robot state: [`NO_ROBOT`] on this image).
 async fn answer_to_unit(qemu: &Qemu, unit: u8) -> Result<Vec<u16>, ExceptionCode> {
     let mut ctx = tcp::connect_slave(qemu.addr(), Slave(unit)).await.unwrap();
-    ctx.read_holding_registers(VERSION_REGISTER, 3).await.unwrap()
+    ctx.read_holding_registers(ROBOT_REGISTERS, 4).await.unwrap()
 }
 
 #[test]
@@ -89,7 +90,7 @@ fn a_put_setting_applies_at_once_and_outlives_qemu() {
     let qemu = boot(&state);
     qemu.run(|| async {
         qemu.connect().await;
-        assert_eq!(answer_to_unit(&qemu, 1).await, Ok(qemu::firmware_version().to_vec()), "any unit at first");
+        assert_eq!(answer_to_unit(&qemu, 1).await, Ok(NO_ROBOT.to_vec()), "any unit at first");
         let (status, body) = request(qemu.http_addr(), "GET", "/api/settings", None);
         assert_eq!((status, field(&body, "unit_id")), (200, "\"any\""), "{body}");
 
@@ -99,7 +100,7 @@ fn a_put_setting_applies_at_once_and_outlives_qemu() {
         assert_eq!(field(&body, "unit_id"), "\"7\"", "{body}");
         assert_eq!(field(&body, "reboot_required"), "false", "{body}");
         // In force at once: unit 7 is served, unit 1 is another device (0x0B).
-        assert_eq!(answer_to_unit(&qemu, 7).await, Ok(qemu::firmware_version().to_vec()));
+        assert_eq!(answer_to_unit(&qemu, 7).await, Ok(NO_ROBOT.to_vec()));
         assert_eq!(answer_to_unit(&qemu, 1).await, Err(ExceptionCode::GatewayTargetDevice));
     });
     let log = qemu.finish();
@@ -111,7 +112,7 @@ fn a_put_setting_applies_at_once_and_outlives_qemu() {
         qemu.connect().await;
         let (status, body) = request(qemu.http_addr(), "GET", "/api/settings", None);
         assert_eq!((status, field(&body, "unit_id")), (200, "\"7\""), "{body}");
-        assert_eq!(answer_to_unit(&qemu, 7).await, Ok(qemu::firmware_version().to_vec()));
+        assert_eq!(answer_to_unit(&qemu, 7).await, Ok(NO_ROBOT.to_vec()));
         assert_eq!(answer_to_unit(&qemu, 1).await, Err(ExceptionCode::GatewayTargetDevice));
         let (status, body) = request(qemu.http_addr(), "GET", "/api/status", None);
         assert_eq!(status, 200, "{body}");
@@ -281,7 +282,7 @@ fn a_power_cut_around_a_save_leaves_the_old_or_the_new_settings() {
         let (_, body) = request(qemu.http_addr(), "GET", "/api/settings", None);
         let last = generation_of(&body);
         let unit = if last == 0 { 1 } else { u8::try_from(1 + last).unwrap() };
-        assert_eq!(answer_to_unit(&qemu, unit).await, Ok(qemu::firmware_version().to_vec()));
+        assert_eq!(answer_to_unit(&qemu, unit).await, Ok(NO_ROBOT.to_vec()));
         last
     });
     assert!(last == saved || last == CUTS, "the last cut: generation {last}, expected {saved} or {CUTS}");

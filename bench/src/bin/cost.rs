@@ -11,7 +11,9 @@ use std::hint::black_box;
 use std::process::ExitCode;
 
 use adapter::map::Image;
-use adapter::server::handler::{self, Outcome, Policy};
+use adapter::server::handler::{self, Context, Outcome, Policy};
+use adapter::server::{Identity, Stats};
+use adapter::settings::Name;
 use modbus::mbap::{HEADER_LEN, MAX_ADU_LEN};
 use rmodbus::server::ModbusFrame;
 use rmodbus::server::storage::ModbusStorageSmall;
@@ -49,10 +51,13 @@ fn request(case: &str) -> Option<(Vec<u8>, usize)> {
 fn ours(adu: &[u8], iterations: u64) -> usize {
     let mut image = Image::new();
     let policy = Policy::default();
+    let stats = Stats::new();
+    let context = Context { identity: Identity { model: "bench", name: &Name::UNSET }, stats: &stats };
     let mut reply = [0u8; MAX_ADU_LEN];
     let mut total = 0;
     for _ in 0..iterations {
-        if let Outcome::Reply { len, .. } = handler::respond(black_box(adu), &mut reply, &mut image, &policy) {
+        if let Outcome::Reply { len, .. } = handler::respond(black_box(adu), &mut reply, &mut image, &policy, &context)
+        {
             total += black_box(&reply)[..len].len();
         }
     }

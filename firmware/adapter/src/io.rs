@@ -3,7 +3,7 @@
 //! - [`OutputPins`]: drives outputs as soon as a master's write lands.
 //! - [`InputPins`]: samples inputs; boards also push input edges into the image
 //!   at once through [`crate::device::Device`].
-//! - [`Robot`]: the robot controller's status and telemetry.
+//! - [`Robot`]: the robot controller's status, telemetry and version.
 //!
 //! Traits and the values that cross them, nothing else: how they map to
 //! registers is the map's business ([`crate::map::points`]).
@@ -183,6 +183,9 @@ pub struct Telemetry {
 pub trait Robot {
     fn status(&mut self) -> RobotStatus;
     fn telemetry(&mut self) -> Telemetry;
+    /// The controller's version (registers 256-258); [`Version::NONE`]
+    /// while the source does not know it.
+    fn version(&mut self) -> Version;
 }
 
 /// No robot link: NOT READY and zeros (docs/data-map.md, *Robot state*).
@@ -197,13 +200,28 @@ impl Robot for NoRobot {
     fn telemetry(&mut self) -> Telemetry {
         Telemetry::default()
     }
+
+    fn version(&mut self) -> Version {
+        Version::NONE
+    }
 }
 
-/// The controller version (registers 256-258), set at boot.
+/// A version: the robot controller's (registers 256-258, from the
+/// [`Robot`] source), or this firmware's ([`crate::VERSION`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Version {
     pub major: u16,
     pub minor: u16,
     pub patch: u16,
+}
+
+impl Version {
+    /// No version known: 0.0.0, what registers 256-258 hold without a robot source.
+    pub const NONE: Self = Self { major: 0, minor: 0, patch: 0 };
+
+    /// Registers 256-258 as the map holds them.
+    pub const fn registers(&self) -> [u16; 3] {
+        [self.major, self.minor, self.patch]
+    }
 }

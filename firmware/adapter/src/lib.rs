@@ -36,17 +36,32 @@ pub mod storage;
 /// The wire codec this core speaks (its own crate: no map, no async).
 pub use modbus;
 
-/// This firmware's version, reported in registers 256-258.
+/// This firmware's version: Read Device Identification's MajorMinorRevision
+/// and `/api/status`'s `firmware`. (Registers 256-258 are the robot
+/// controller's version, from the [`io::Robot`] source.)
 pub const VERSION: io::Version = io::Version {
     major: parse_u16(env!("CARGO_PKG_VERSION_MAJOR")),
     minor: parse_u16(env!("CARGO_PKG_VERSION_MINOR")),
     patch: parse_u16(env!("CARGO_PKG_VERSION_PATCH")),
 };
 
+/// This firmware's version as text (`0.1.0`): the same manifest version as
+/// [`VERSION`], as Read Device Identification sends it (MajorMinorRevision).
+pub const VERSION_TEXT: &str = env!("CARGO_PKG_VERSION");
+
 /// Parses a decimal `u16` at compile time (0 for anything else).
 pub(crate) const fn parse_u16(text: &str) -> u16 {
     match u16::from_str_radix(text, 10) {
         Ok(value) => value,
         Err(_) => 0,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_version_as_text_is_the_version() {
+        let super::io::Version { major, minor, patch } = super::VERSION;
+        assert_eq!(super::VERSION_TEXT, format!("{major}.{minor}.{patch}"));
     }
 }

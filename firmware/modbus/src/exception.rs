@@ -6,7 +6,7 @@ code_table! {
     /// The PDU parser and the data map return it, so an error becomes a reply
     /// with no mapping layer in between. This server sends only the listed
     /// codes; `Unknown` holds any other code a peer sends.
-    pub enum Exception {
+    pub enum Exception: u8 {
         display: "exception",
         /// The function code is not supported.
         IllegalFunction = 0x01, "illegal function", section "7";

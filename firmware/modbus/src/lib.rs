@@ -9,7 +9,9 @@
 #[macro_use]
 mod macros;
 
+pub mod diagnostics;
 pub mod exception;
+pub mod identification;
 pub mod mbap;
 pub mod pdu;
 

@@ -1,12 +1,13 @@
 //! The macro that writes a code table (as smoltcp's `enum_with_unknown!`).
 
-/// Defines a table of one-byte codes from one list: each code is written
-/// once, and every conversion, name and doc line is generated from it.
+/// Defines a table of codes from one list: each code is written once, and
+/// every conversion, name and doc line is generated from it. Codes are one
+/// byte (`u8`), or two for a table of sub-functions (`u16`).
 ///
 /// ```text
 /// code_table! {
 ///     /// What the table is.
-///     pub enum Table {
+///     pub enum Table: u8 {
 ///         display: "label",
 ///         /// Optional notes on one code.
 ///         Variant = 0x01, "spec name", section "6.1";
@@ -15,22 +16,22 @@
 /// }
 /// ```
 ///
-/// The enum gets an `Unknown(u8)` fallback, so every byte has a value and
-/// round-trips; `From<u8>`; `From<Table> for u8` and `const fn code`;
+/// The enum gets an `Unknown(code)` fallback, so every code has a value and
+/// round-trips; `From` the code's type and back, and `const fn code`;
 /// `const fn name` (the spec's name, "unknown" for the fallback); `Display`
 /// as `label 0b: spec name`; `Clone, Copy, Debug, PartialEq, Eq` and
 /// `defmt::Format` under the `defmt` feature. Each variant's doc starts with
 /// its code, name and section of the Modbus Application Protocol V1.1b3.
 ///
-/// Each code is also its variant's discriminant (`repr(u8)`), so `code()` is
-/// a compare and a select rather than a lookup, and a match on the table is a
-/// match on the byte: this keeps the firmware as small as with fieldless
-/// enums. `Unknown` takes the discriminant after the last code, so list the
+/// Each code is also its variant's discriminant (`repr(u8)`, `repr(u16)`),
+/// so `code()` is a compare and a select rather than a lookup, and a match on
+/// the table is a match on the code: this keeps the firmware as small as
+/// with fieldless enums. `Unknown` takes the discriminant after the last code, so list the
 /// codes in ascending order (the compiler rejects a collision).
 macro_rules! code_table {
     (
         $(#[$meta:meta])*
-        $vis:vis enum $Table:ident {
+        $vis:vis enum $Table:ident: $repr:ident {
             display: $label:literal,
             $(
                 $(#[$doc:meta])*
@@ -41,7 +42,7 @@ macro_rules! code_table {
         $(#[$meta])*
         #[derive(Clone, Copy, Debug, PartialEq, Eq)]
         #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-        #[repr(u8)]
+        #[repr($repr)]
         $vis enum $Table {
             $(
                 #[doc = concat!(
@@ -54,13 +55,13 @@ macro_rules! code_table {
             )+
             /// A code this table does not list, kept as it came so that it
             /// round-trips.
-            Unknown(u8),
+            Unknown($repr),
         }
 
         impl $Table {
             /// The code on the wire.
             #[inline]
-            pub const fn code(self) -> u8 {
+            pub const fn code(self) -> $repr {
                 match self {
                     $( Self::$Variant => $code, )+
                     Self::Unknown(code) => code,
@@ -76,9 +77,9 @@ macro_rules! code_table {
             }
         }
 
-        impl From<u8> for $Table {
+        impl From<$repr> for $Table {
             #[inline]
-            fn from(code: u8) -> Self {
+            fn from(code: $repr) -> Self {
                 match code {
                     $( $code => Self::$Variant, )+
                     other => Self::Unknown(other),
@@ -86,9 +87,9 @@ macro_rules! code_table {
             }
         }
 
-        impl From<$Table> for u8 {
+        impl From<$Table> for $repr {
             #[inline]
-            fn from(value: $Table) -> u8 {
+            fn from(value: $Table) -> $repr {
                 value.code()
             }
         }

@@ -45,7 +45,7 @@ const MDNS_SOCKETS: usize = 1;
 #[cfg(not(feature = "mdns"))]
 const MDNS_SOCKETS: usize = 0;
 
-/// The board, as `/api/status` and mDNS's TXT name it.
+/// The board, as Read Device Identification (ModelName), `/api/status` and mDNS's TXT name it.
 pub const MODEL: &str = "mps2-an386";
 
 /// The factory settings: DHCP with the test bench's address as the
@@ -120,10 +120,10 @@ fn main() -> ! {
     let (stack, runner) = embassy_net::new(ethernet, config, RESOURCES.init(StackResources::new()), seed);
 
     static DEVICE: StaticCell<Device<'static>> = StaticCell::new();
-    let device: &'static Device<'static> = DEVICE.init(Device::new(settings.watchdog(), adapter::VERSION, &LEDS));
+    let device: &'static Device<'static> = DEVICE.init(Device::new(settings.watchdog(), MODEL, &LEDS));
     device.drive_outputs();
     static SERVER: StaticCell<ModbusServer> = StaticCell::new();
-    let server: &'static ModbusServer = SERVER.init(Server::new(settings.server_config(), device));
+    let server: &'static ModbusServer = SERVER.init(Server::new(settings.server_config(mac), device));
 
     #[cfg(feature = "http")]
     let (api, names): (&'static Api, &'static dyn DeviceName) = {

@@ -44,7 +44,7 @@ pub const SETTINGS: Settings = Settings::DEFAULT.with_build_env();
 #[cfg(feature = "http")]
 const _: () = assert!(SETTINGS.modbus.port != adapter::http::HTTP_PORT, "MODBUS_PORT must not be the HTTP port");
 
-/// The board, as `/api/status` and mDNS's TXT name it.
+/// The board, as Read Device Identification (ModelName), `/api/status` and mDNS's TXT name it.
 pub const MODEL: &str = "nucleo-f429zi";
 
 /// The Modbus server over the device.
@@ -87,10 +87,10 @@ async fn start(spawner: Spawner) {
     let settings: &'static Settings = &SETTINGS;
 
     static DEVICE: StaticCell<Device<'static>> = StaticCell::new();
-    let device = &*DEVICE.init(Device::new(settings.watchdog(), adapter::VERSION, board.outputs));
+    let device = &*DEVICE.init(Device::new(settings.watchdog(), MODEL, board.outputs));
     device.drive_outputs();
     static SERVER: StaticCell<ModbusServer> = StaticCell::new();
-    let server = &*SERVER.init(Server::new(settings.server_config(), device));
+    let server = &*SERVER.init(Server::new(settings.server_config(board.mac), device));
 
     let name = settings.device.name.or_default(board.mac);
     let config = adapter::net::initial_config(&settings.network, &name);

@@ -13,6 +13,8 @@
 //!   kinematics; velocities are exact time derivatives of the positions;
 //!   torques are gravity holding torques of point masses plus inertia;
 //!   currents follow the torques and temperatures follow the currents.
+//! - Its controller version (registers 256-258) is a fixed, simulated one:
+//!   [`CONTROLLER_VERSION`].
 //! - Everything is a function of [`Instant`]: the same time gives the same
 //!   values whatever the rate at which [`Robot::status`] and
 //!   [`Robot::telemetry`] are called (temperatures aside, which integrate).
@@ -27,7 +29,7 @@ use core::fmt;
 use embassy_time::Instant;
 use libm::{atan2f, cosf, expf, roundf, sinf, sqrtf};
 
-use adapter::io::{Robot, RobotState, RobotStatus, SafetyStop, Six, Telemetry};
+use adapter::io::{Robot, RobotState, RobotStatus, SafetyStop, Six, Telemetry, Version};
 
 /// What the simulated controller does once it is up.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -104,6 +106,11 @@ impl fmt::Display for Refused {
 }
 
 impl core::error::Error for Refused {}
+
+/// The simulated controller's version (registers 256-258). Made up: no real
+/// controller's, and apart from the adapter's own version (0x2B) on purpose,
+/// so a master that mixes the two up shows it.
+pub const CONTROLLER_VERSION: Version = Version { major: 2, minor: 7, patch: 3 };
 
 /// How long INITIALIZING lasts after the first sample (Demo).
 pub const INIT_TIME_US: u64 = 1_000_000;
@@ -455,6 +462,10 @@ impl Robot for SimRobot {
     fn telemetry(&mut self) -> Telemetry {
         self.telemetry_at(Instant::now())
     }
+
+    fn version(&mut self) -> Version {
+        CONTROLLER_VERSION
+    }
 }
 
 /// Joint space at one instant.
@@ -649,6 +660,18 @@ mod tests {
 
     fn close(a: f32, b: f32, tolerance: f32) -> bool {
         (a - b).abs() <= tolerance
+    }
+
+    #[test]
+    fn the_controller_version_is_the_simulated_one_whatever_the_state() {
+        for mode in [Mode::Demo, Mode::Idle] {
+            let mut robot = SimRobot::new(mode);
+            assert_eq!(Robot::version(&mut robot), CONTROLLER_VERSION);
+        }
+        let mut image = Image::new();
+        image.set_controller_version(&CONTROLLER_VERSION);
+        assert_eq!([256, 257, 258].map(|a| image.register(a)), [2, 7, 3]);
+        assert_ne!(CONTROLLER_VERSION, adapter::VERSION, "told apart from the adapter's own");
     }
 
     #[test]

@@ -1,5 +1,6 @@
 //! Writes the seed corpora of the fuzz targets from the codec fixtures
-//! (`test_support::fixtures::PYMODBUS`, bytes captured from pymodbus), and
+//! (`test_support::fixtures::PYMODBUS` and `PYMODBUS_DEVICE`, bytes captured
+//! from pymodbus, the latter Read Device Identification and Diagnostics), and
 //! the store's from records and real saves (`firmware_fuzz::storage::seeds`):
 //!
 //! ```text
@@ -16,10 +17,11 @@ use std::path::{Path, PathBuf};
 
 use firmware_fuzz::input::{
     HTTP_KEEP_OPEN, HTTP_OUTSIDE, HTTP_PARTIAL_WRITES, HTTP_PASSWORD_SET, HTTP_SAVE_FAILS, HTTP_STALL_READS,
-    PARTIAL_WRITES, STALL_READS, STRICT, UNIT_FILTER,
+    PARTIAL_WRITES, READ_ONLY, STALL_READS, STRICT, UNIT_FILTER,
 };
 use firmware_fuzz::{HandlerInput, HttpInput, SessionInput};
-use test_support::fixtures::PYMODBUS;
+use test_support::fixtures::{PYMODBUS, PYMODBUS_DEVICE};
+use test_support::framer::adu;
 
 fn main() {
     let dir = std::env::args_os().nth(1).map(PathBuf::from).unwrap_or_else(|| {
@@ -63,6 +65,32 @@ fn requests() -> impl Iterator<Item = &'static [u8]> {
     PYMODBUS.iter().map(|f| f.request)
 }
 
+fn device_requests() -> impl Iterator<Item = &'static [u8]> {
+    PYMODBUS_DEVICE.iter().map(|f| f.request)
+}
+
+/// Read Device Identification and Diagnostics requests the fixtures do not
+/// hold: each exception path, the other sub-functions and streams (unit 1).
+fn device_variants() -> Vec<Vec<u8>> {
+    let pdus: [&[u8]; 14] = [
+        &[0x2b, 0x0e, 0x02, 0x04],       // a regular stream from object 4
+        &[0x2b, 0x0e, 0x01, 0x05],       // a basic stream from a regular object: from 0
+        &[0x2b, 0x0e, 0x04, 0x07],       // no object 7: 02
+        &[0x2b, 0x0e, 0x03, 0x00],       // extended: 03
+        &[0x2b, 0x0d, 0x01, 0x00],       // MEI type 0D: 01
+        &[0x2b, 0x0e, 0x01],             // cut short: 03
+        &[0x08, 0x00, 0x0c, 0x00, 0x00], // communication errors
+        &[0x08, 0x00, 0x0d, 0x00, 0x00], // exceptions
+        &[0x08, 0x00, 0x0e, 0x00, 0x00], // server messages
+        &[0x08, 0x00, 0x0f, 0x00, 0x00], // no response
+        &[0x08, 0x00, 0x12, 0x00, 0x00], // overrun
+        &[0x08, 0x00, 0x01, 0x00, 0x00], // restart communications: 01
+        &[0x08, 0x00, 0x0b, 0x00, 0x01], // a count's data not 0000: 03
+        &[0x08, 0x00, 0x00],             // an empty query: echoed
+    ];
+    pdus.iter().enumerate().map(|(i, pdu)| adu(0x100 + i as u16, 0, 1, pdu)).collect()
+}
+
 /// `frame` with another unit id, protocol id or length field.
 fn with(frame: &[u8], at: usize, bytes: &[u8]) -> Vec<u8> {
     let mut out = frame.to_vec();
@@ -92,6 +120,22 @@ fn session_seeds() -> Vec<Vec<u8>> {
     seeds.push(seed(0, 0, &[], &other_protocol));
     seeds.push(seed(0, 0, &[], &[first, &with(first, 4, &[0, 255])].concat()));
     seeds.push(seed(0, 0, &[], &[first, &first[..9]].concat()));
+    // Read Device Identification and Diagnostics: alone, among the map's
+    // functions, cut into reads, from a client that may not clear the
+    // counters, behind the unit filter, and counting a skipped frame.
+    let device: Vec<u8> = device_requests().flatten().copied().collect();
+    let variants: Vec<u8> = device_variants().concat();
+    seeds.extend(device_requests().map(|r| seed(0, 0, &[], r)));
+    seeds.extend([
+        seed(0, 0, &[], &device),
+        seed(0, 0, &[], &[&all[..], &device, &variants, &all].concat()),
+        seed(0, 0, &[3, 1, 0, 7], &[&device[..], &variants].concat()),
+        seed(READ_ONLY, 0, &[], &[&all[..], &device, &variants].concat()),
+        seed(UNIT_FILTER, 2, &[], &[&device[..], &variants].concat()),
+        seed(STALL_READS | PARTIAL_WRITES, 0, &[5, 9], &[&device[..], &variants].concat()),
+    ]);
+    let count = PYMODBUS_DEVICE[5].request;
+    seeds.push(seed(0, 0, &[], &[&with(first, 2, &[0, 1])[..], count, &device, count].concat()));
     seeds
 }
 
@@ -103,12 +147,21 @@ fn handler_seeds() -> Vec<Vec<u8>> {
     // Replies are no requests: each gets an exception or is discarded.
     let replies: Vec<&[u8]> = PYMODBUS.iter().map(|f| f.reply).collect();
     seeds.push(HandlerInput::encode(0, 0, &replies));
+    // Read Device Identification and Diagnostics, and their exceptions.
+    seeds.extend(device_requests().map(|r| HandlerInput::encode(0, 0, &[r])));
+    let variants = device_variants();
+    let device: Vec<&[u8]> =
+        device_requests().map(|r| -> &[u8] { r }).chain(variants.iter().map(Vec::as_slice)).collect();
+    seeds.push(HandlerInput::encode(0, 0, &device));
+    seeds.push(HandlerInput::encode(READ_ONLY | UNIT_FILTER, 1, &device));
+    let device_replies: Vec<&[u8]> = PYMODBUS_DEVICE.iter().map(|f| f.reply).collect();
+    seeds.push(HandlerInput::encode(0, 0, &device_replies));
     seeds
 }
 
 fn codec_seeds() -> Vec<Vec<u8>> {
     let mut seeds = Vec::new();
-    for fixture in &PYMODBUS {
+    for fixture in PYMODBUS.iter().chain(&PYMODBUS_DEVICE) {
         seeds.push(fixture.request[7..].to_vec());
         seeds.push(fixture.reply[7..].to_vec());
         seeds.push(fixture.request.to_vec());

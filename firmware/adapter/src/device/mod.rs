@@ -15,11 +15,13 @@ use embassy_time::{Duration, Instant, Ticker};
 
 pub use self::stats::{Counters, Stats};
 pub use self::watchdog::{SafeState, Watchdog};
-use crate::io::{InputPins, OutputPins, Robot, RobotStatus, Version};
+use crate::io::{InputPins, OutputPins, Robot, RobotStatus};
 use crate::map::Image;
 use crate::map::table::reg;
 use crate::modbus::mbap::MAX_ADU_LEN;
-use crate::server::handler::{self, Outcome, Policy};
+use crate::server::Identity;
+use crate::server::handler::{self, Context, Outcome, Policy};
+use crate::settings::Name;
 
 /// How often the source-backed points are refreshed and re-asserted.
 pub const REFRESH_PERIOD: Duration = Duration::from_millis(100);
@@ -33,31 +35,34 @@ struct State {
 }
 
 /// The shared device: the image behind a blocking mutex (held while one
-/// request is applied, never across an `.await`), the board's outputs, the
-/// watchdog and the counters.
+/// request is applied, never across an `.await`), the board's outputs and
+/// model, the watchdog and the counters.
 pub struct Device<'a> {
     state: Mutex<CriticalSectionRawMutex, RefCell<State>>,
     outputs: &'a dyn OutputPins,
-    version: Version,
+    model: &'static str,
     stats: Stats,
 }
 
 impl core::fmt::Debug for Device<'_> {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.debug_struct("Device")
-            .field("watchdog", &self.watchdog())
-            .field("version", &self.version)
-            .finish_non_exhaustive()
+        f.debug_struct("Device").field("watchdog", &self.watchdog()).field("model", &self.model).finish_non_exhaustive()
     }
 }
 
 impl<'a> Device<'a> {
-    /// A fresh image with `version` in registers 256-258 and the robot NOT READY.
-    pub fn new(watchdog: Watchdog, version: Version, outputs: &'a dyn OutputPins) -> Self {
-        let mut image = Image::new();
-        image.set_version(&version);
-        let state = State { image, watchdog, monitor: watchdog::Monitor::new(Instant::now()) };
-        Self { state: Mutex::new(RefCell::new(state)), outputs, version, stats: Stats::new() }
+    /// The board `model` (Read Device Identification's ModelName: the
+    /// board crate's name, `hal-sim` for hal-sim) with a fresh image: the
+    /// robot NOT READY and its version 0.0.0 until the first refresh
+    /// samples the robot source.
+    pub fn new(watchdog: Watchdog, model: &'static str, outputs: &'a dyn OutputPins) -> Self {
+        let state = State { image: Image::new(), watchdog, monitor: watchdog::Monitor::new(Instant::now()) };
+        Self { state: Mutex::new(RefCell::new(state)), outputs, model, stats: Stats::new() }
+    }
+
+    /// The board, as Read Device Identification names it.
+    pub fn model(&self) -> &'static str {
+        self.model
     }
 
     /// The diagnostics counters.
@@ -81,13 +86,15 @@ impl<'a> Device<'a> {
         self.state.lock(|state| state.borrow_mut().watchdog = watchdog);
     }
 
-    /// Answers one request frame into `reply` under `policy`, drives the
-    /// outputs at once if the request changed them, feeds the watchdog and counts.
-    pub fn respond(&self, frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], policy: &Policy) -> Outcome {
+    /// Answers one request frame into `reply` under `policy`, as the device
+    /// named `name`; drives the outputs at once if the request changed them,
+    /// feeds the watchdog and counts.
+    pub fn respond(&self, frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], policy: &Policy, name: &Name) -> Outcome {
+        let context = Context { identity: Identity { model: self.model, name }, stats: &self.stats };
         let outcome = self.state.lock(|state| {
             let state = &mut *state.borrow_mut();
             let watching = state.watchdog.timeout.is_some();
-            let outcome = handler::respond(frame, reply, &mut state.image, policy);
+            let outcome = handler::respond(frame, reply, &mut state.image, policy, &context);
             if let Outcome::Reply { written, exception, .. } = outcome {
                 if written.outputs {
                     self.outputs.drive(&state.image.outputs());
@@ -99,10 +106,10 @@ impl<'a> Device<'a> {
             outcome
         });
         match outcome {
-            Outcome::Reply { function, exception, .. } => {
+            Outcome::Reply { write, exception, .. } => {
                 Stats::count(&self.stats.requests);
                 if let Some(exception) = exception {
-                    self.stats.count_exception(exception, policy.read_only && function.is_write());
+                    self.stats.count_exception(exception, policy.read_only && write);
                 }
             }
             Outcome::Discard { .. } => Stats::count(&self.stats.bad_protocol),
@@ -180,13 +187,14 @@ impl<'a> Device<'a> {
         });
         let status = robot.status();
         let telemetry = robot.telemetry();
+        let version = robot.version();
         self.update(|image| {
             image.set_register(reg::DIGITAL_INPUTS, digital);
             image.set_register(reg::TOOL_INPUTS, u16::from(tool));
             for (channel, value) in analog.into_iter().enumerate() {
                 image.set_analog_input(channel, value);
             }
-            image.set_version(&self.version);
+            image.set_controller_version(&version);
             image.set_robot_status(&status);
             image.set_telemetry(&telemetry);
         });

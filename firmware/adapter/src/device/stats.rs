@@ -1,13 +1,31 @@
 //! Diagnostics counters (as an I/O adapter's web page or WAGO's diagnostics
-//! show them): what the server has seen since start-up.
+//! show them): what the server has seen since start-up, or since a master
+//! cleared them (Diagnostics 08/000A).
 //!
 //! Counted with relaxed atomics, so any task may count without a lock and a
-//! reader gets each counter exact (the set is not one atomic snapshot).
+//! reader gets each counter exact (the set is not one atomic snapshot, nor
+//! is a clear).
+//!
+//! Diagnostics (function 08) reads the serial-line counters of the Modbus
+//! specification (6.8.1) as these, by [`Counters::diagnostic`]
+//! (docs/data-map.md, *Diagnostics*):
+//!
+//! | sub-function | serial-line counter | here |
+//! |---|---|---|
+//! | 0B | bus messages | `requests` + `bad_protocol`: every whole frame |
+//! | 0C | bus communication errors | `bad_length`: streams lost to a bad length field |
+//! | 0D | bus exception errors | `bad_function` + `bad_address` + `bad_value` + `refused_writes` + `other_unit` |
+//! | 0E | server messages | `requests` - `other_unit`: the Modbus frames for this unit |
+//! | 0F | server no response | `bad_protocol`: frames skipped unanswered |
+//! | 12 | bus character overrun | `evictions`: sessions closed because every one was taken |
+//!
+//! Each is sent as its low 16 bits, as a 16-bit counter would wrap.
 
 use core::fmt;
 use core::sync::atomic::{AtomicU32, Ordering};
 
 use crate::modbus::Exception;
+use crate::modbus::diagnostics::Diagnostic;
 
 macro_rules! counters {
     ($( $(#[$doc:meta])* $name:ident ),* $(,)?) => {
@@ -33,6 +51,11 @@ macro_rules! counters {
             /// Reads every counter.
             pub fn snapshot(&self) -> Counters {
                 Counters { $( $name: self.$name.load(Ordering::Relaxed), )* }
+            }
+
+            /// Sets every counter to 0.
+            pub fn clear(&self) {
+                $( self.$name.store(0, Ordering::Relaxed); )*
             }
         }
 
@@ -71,7 +94,8 @@ counters! {
     bad_address,
     /// Exception 03.
     bad_value,
-    /// Exception 01 for a write from a client outside the write allow-list.
+    /// Exception 01 for a write, or a Clear Counters, from a client outside
+    /// the write allow-list.
     refused_writes,
     /// Exception 0B: a unit id this server does not answer.
     other_unit,
@@ -105,6 +129,27 @@ impl Stats {
     }
 }
 
+impl Counters {
+    /// The count Diagnostics' counter sub-function `sub_function` returns
+    /// (the module's table), or `None` for a sub-function that returns none.
+    pub fn diagnostic(&self, sub_function: Diagnostic) -> Option<u16> {
+        let count = match sub_function {
+            Diagnostic::ReturnBusMessageCount => self.requests.wrapping_add(self.bad_protocol),
+            Diagnostic::ReturnBusCommunicationErrorCount => self.bad_length,
+            Diagnostic::ReturnBusExceptionErrorCount => {
+                [self.bad_function, self.bad_address, self.bad_value, self.refused_writes, self.other_unit]
+                    .into_iter()
+                    .fold(0, u32::wrapping_add)
+            }
+            Diagnostic::ReturnServerMessageCount => self.requests.saturating_sub(self.other_unit),
+            Diagnostic::ReturnServerNoResponseCount => self.bad_protocol,
+            Diagnostic::ReturnBusCharacterOverrunCount => self.evictions,
+            Diagnostic::ReturnQueryData | Diagnostic::ClearCounters | Diagnostic::Unknown(_) => return None,
+        };
+        Some(count as u16)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -132,5 +177,51 @@ mod tests {
         let mut pairs = Vec::new();
         c.for_each(|name, value| pairs.push(format!("{name}={value}")));
         assert_eq!(pairs.join(" "), c.to_string(), "the same names and order");
+    }
+
+    #[test]
+    fn clear_sets_every_counter_to_0() {
+        let stats = Stats::new();
+        let all = |stats: &Stats| {
+            let mut values = Vec::new();
+            stats.snapshot().for_each(|_, value| values.push(value));
+            values
+        };
+        for (i, counter) in [
+            &stats.requests,
+            &stats.bad_protocol,
+            &stats.bad_length,
+            &stats.bad_function,
+            &stats.bad_address,
+            &stats.bad_value,
+            &stats.refused_writes,
+            &stats.other_unit,
+            &stats.evictions,
+            &stats.timeouts,
+            &stats.refused_connections,
+            &stats.watchdog_trips,
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            counter.store(i as u32 + 1, Ordering::Relaxed);
+        }
+        assert!(all(&stats).iter().all(|&v| v > 0), "each counter set: {:?}", all(&stats));
+        stats.clear();
+        assert_eq!(all(&stats), [0; 12]);
+    }
+
+    #[test]
+    fn diagnostic_counters_wrap_at_16_bits_and_never_underflow() {
+        let c = Counters { requests: 0xffff, bad_protocol: 2, other_unit: 1, ..Counters::default() };
+        assert_eq!(c.diagnostic(Diagnostic::ReturnBusMessageCount), Some(1), "0x1_0001 sent as its low 16 bits");
+        assert_eq!(c.diagnostic(Diagnostic::ReturnServerMessageCount), Some(0xfffe));
+        let odd = Counters { requests: 1, other_unit: 2, ..Counters::default() };
+        assert_eq!(odd.diagnostic(Diagnostic::ReturnServerMessageCount), Some(0), "a reader between two counts");
+        let wide = Counters { bad_function: u32::MAX, bad_value: 2, ..Counters::default() };
+        assert_eq!(wide.diagnostic(Diagnostic::ReturnBusExceptionErrorCount), Some(1));
+        for none in [Diagnostic::ReturnQueryData, Diagnostic::ClearCounters, Diagnostic::Unknown(0x10)] {
+            assert_eq!(c.diagnostic(none), None, "{none}");
+        }
     }
 }

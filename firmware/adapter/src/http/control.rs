@@ -109,7 +109,7 @@ impl<F: NorFlash, P: Platform> Backend for Controller<'_, F, P> {
         // What applies at once goes in force now; the port stays as the
         // listeners opened it until the reboot.
         let port = self.server.with_config(|config| config.port);
-        self.server.set_config(crate::server::Config { port, ..settings.server_config() });
+        self.server.set_config(crate::server::Config { port, ..settings.server_config(self.platform.mac()) });
         self.server.service().set_watchdog(settings.watchdog());
         info!("settings: saved and applied");
         Ok(before.reboot_required(settings))

@@ -34,10 +34,13 @@ pub struct TestBackend {
     pub factory_resets: Cell<usize>,
 }
 
+/// The test backend's MAC.
+pub const TEST_MAC: [u8; 6] = [0x02, 0x4d, 0x42, 0x53, 0x49, 0x4d];
+
 impl TestBackend {
     pub fn new() -> Self {
         let settings = Settings::DEFAULT;
-        let (server, _) = server_with(settings.server_config(), Watchdog::OFF);
+        let (server, _) = server_with(settings.server_config(TEST_MAC), Watchdog::OFF);
         Self {
             server,
             settings: RefCell::new(settings),
@@ -65,7 +68,7 @@ impl Backend for TestBackend {
             return Err(refusal);
         }
         let old = self.settings.replace(*settings);
-        self.server.set_config(Config { port: self.server.config().port, ..settings.server_config() });
+        self.server.set_config(Config { port: self.server.config().port, ..settings.server_config(TEST_MAC) });
         self.server.service().set_watchdog(settings.watchdog());
         self.applied.set(self.applied.get() + 1);
         Ok(old.reboot_required(settings))
@@ -104,7 +107,7 @@ impl Backend for TestBackend {
     }
 
     fn mac(&self) -> [u8; 6] {
-        [0x02, 0x4d, 0x42, 0x53, 0x49, 0x4d]
+        TEST_MAC
     }
 
     fn network(&self) -> NetworkStatus {

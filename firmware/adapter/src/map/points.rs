@@ -65,8 +65,8 @@ impl Image {
         self.set_registers(reg::EXTERNAL_FORCE, &signed(&telemetry.external_wrench));
     }
 
-    /// Registers 256-258.
-    pub fn set_version(&mut self, version: &Version) {
-        self.set_registers(reg::VERSION_MAJOR, &[version.major, version.minor, version.patch]);
+    /// Registers 256-258: the robot controller's version.
+    pub fn set_controller_version(&mut self, version: &Version) {
+        self.set_registers(reg::CONTROLLER_VERSION, &version.registers());
     }
 }

@@ -164,9 +164,8 @@ pub mod reg {
     pub const TOOL_INPUTS: u16 = 21;
     pub const TOOL_OUTPUTS: u16 = 22;
     pub const GENERAL_PURPOSE: u16 = 128;
-    pub const VERSION_MAJOR: u16 = 256;
-    pub const VERSION_MINOR: u16 = 257;
-    pub const VERSION_PATCH: u16 = 258;
+    /// The robot controller's version: major, then minor (257) and patch (258).
+    pub const CONTROLLER_VERSION: u16 = 256;
     pub const ROBOT_STATE: u16 = 259;
     pub const SERVO_ON: u16 = 260;
     pub const EMERGENCY_STOP: u16 = 261;

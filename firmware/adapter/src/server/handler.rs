@@ -2,8 +2,15 @@
 //!
 //! Synchronous and allocation-free; the session calls it with the image
 //! locked. This is the per-request cost the benchmarks measure.
+//!
+//! The map's six functions read and write the image; Read Device
+//! Identification answers from the [`Identity`]; Diagnostics echoes, or
+//! reads or clears the counters.
 
+use super::identity::Identity;
+use crate::device::Stats;
 use crate::map::{Image, WritePolicy, Written};
+use crate::modbus::diagnostics::Diagnostic;
 use crate::modbus::mbap::{self, Frame, Header, MAX_ADU_LEN};
 use crate::modbus::pdu::{self, EXCEPTION_FLAG};
 use crate::modbus::{Exception, FunctionCode, Request, Response};
@@ -16,9 +23,18 @@ pub struct Policy {
     /// reply exception 0B to any other.
     pub unit_id: Option<u8>,
     pub write_policy: WritePolicy,
-    /// The client may not write: its write functions (05, 06, 0F, 10) get
-    /// exception 01, as functions it is not allowed (see [`super::access`]).
+    /// The client may not write: its write functions (05, 06, 0F, 10) and
+    /// Diagnostics' Clear Counters get exception 01, as functions it is not
+    /// allowed (see [`super::access`] and [`pdu::is_write`]).
     pub read_only: bool,
+}
+
+/// What a request is answered from besides the image: who the device is
+/// (Read Device Identification) and its counters (Diagnostics).
+#[derive(Clone, Copy, Debug)]
+pub struct Context<'a> {
+    pub identity: Identity<'a>,
+    pub stats: &'a Stats,
 }
 
 /// Unit ids a configured server always answers (broadcast-ish 0, and 0xFF,
@@ -29,8 +45,9 @@ pub const ALWAYS_ANSWERED_UNITS: [u8; 2] = [0x00, 0xFF];
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Outcome {
-    /// Send the first `len` bytes of the reply buffer.
-    Reply { len: usize, function: FunctionCode, written: Written, exception: Option<Exception> },
+    /// Send the first `len` bytes of the reply buffer. `write`: the request
+    /// asks for a change ([`pdu::is_write`]), whether or not it was refused.
+    Reply { len: usize, function: FunctionCode, write: bool, written: Written, exception: Option<Exception> },
     /// The protocol id is not Modbus: no reply, the connection carries on.
     Discard { protocol_id: u16 },
     /// The bytes are not one whole frame (its length field and the buffer
@@ -40,7 +57,13 @@ pub enum Outcome {
 }
 
 /// Answers the request `frame` (exactly one whole MBAP frame) into `reply`.
-pub fn respond(frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], image: &mut Image, policy: &Policy) -> Outcome {
+pub fn respond(
+    frame: &[u8],
+    reply: &mut [u8; MAX_ADU_LEN],
+    image: &mut Image,
+    policy: &Policy,
+    context: &Context<'_>,
+) -> Outcome {
     let request = Frame::new_unchecked(frame);
     let Ok(pdu) = request.pdu() else { return Outcome::NotWhole };
     let header = Header::parse(&request);
@@ -49,13 +72,14 @@ pub fn respond(frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], image: &mut Image, p
     }
     let code = pdu.first().copied().unwrap_or(0);
     let function = FunctionCode::from(code);
+    let write = pdu::is_write(pdu);
     let mut out = Frame::new_unchecked(&mut reply[..]);
     let result = match policy.unit_id {
         Some(id) if header.unit_id != id && !ALWAYS_ANSWERED_UNITS.contains(&header.unit_id) => {
             Err(Exception::GatewayTargetDeviceFailedToRespond)
         }
-        _ if policy.read_only && function.is_write() => Err(Exception::IllegalFunction),
-        _ => execute(pdu, out.payload_mut(), image, policy.write_policy),
+        _ if policy.read_only && write => Err(Exception::IllegalFunction),
+        _ => execute(pdu, out.payload_mut(), image, policy.write_policy, context),
     };
     let (pdu_len, written, exception) = match result {
         Ok((len, written)) => (len, written, None),
@@ -66,11 +90,18 @@ pub fn respond(frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], image: &mut Image, p
         }
     };
     let len = header.emit(&mut out, pdu_len).unwrap_or(0);
-    Outcome::Reply { len, function, written, exception }
+    Outcome::Reply { len, function, write, written, exception }
 }
 
-/// Executes a request PDU against the image; writes the response PDU into `out`.
-fn execute(pdu: &[u8], out: &mut [u8], image: &mut Image, policy: WritePolicy) -> Result<(usize, Written), Exception> {
+/// Executes a request PDU against the image (or the context); writes the
+/// response PDU into `out`.
+fn execute(
+    pdu: &[u8],
+    out: &mut [u8],
+    image: &mut Image,
+    policy: WritePolicy,
+    context: &Context<'_>,
+) -> Result<(usize, Written), Exception> {
     let request = Request::parse(pdu)?;
     let nothing = Written::default();
     match request {
@@ -103,6 +134,22 @@ fn execute(pdu: &[u8], out: &mut [u8], image: &mut Image, policy: WritePolicy) -
             let written = image.write_registers(start, values, policy)?;
             let len = Response::WriteMultipleRegisters { start, quantity }.emit(out);
             Ok((len.ok_or(Exception::ServerDeviceFailure)?, written))
+        }
+        Request::ReadDeviceIdentification { code, object_id } => {
+            Ok((context.identity.respond(code, object_id, out)?, nothing))
+        }
+        Request::Diagnostics { sub_function: Diagnostic::ReturnQueryData, .. } => Ok((echo(pdu, out)?, nothing)),
+        Request::Diagnostics { sub_function: Diagnostic::ClearCounters, .. } => {
+            // The clear is answered, then counted as every request is: the
+            // next read finds it alone (docs/data-map.md, *Diagnostics*).
+            context.stats.clear();
+            Ok((echo(pdu, out)?, nothing))
+        }
+        Request::Diagnostics { sub_function, .. } => {
+            let count = context.stats.snapshot().diagnostic(sub_function).ok_or(Exception::IllegalFunction)?;
+            let data = count.to_be_bytes();
+            let len = Response::Diagnostics { sub_function, data: &data }.emit(out);
+            Ok((len.ok_or(Exception::ServerDeviceFailure)?, nothing))
         }
     }
 }

@@ -6,6 +6,7 @@
 
 pub mod access;
 pub mod handler;
+pub mod identity;
 mod listener;
 mod session;
 mod slots;
@@ -17,7 +18,8 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_time::Duration;
 
 pub use access::{Access, AllowList, Network};
-pub use handler::{Outcome, Policy};
+pub use handler::{Context, Outcome, Policy};
+pub use identity::Identity;
 #[cfg(feature = "http")]
 pub(crate) use listener::Peer;
 pub use listener::{CLOSE_TIMEOUT, SOCKET_RX_LEN, SOCKET_TX_LEN, listen};
@@ -26,6 +28,7 @@ pub use slots::{Session, SlotId, Slots};
 
 pub use crate::device::{Counters, SafeState, Stats, Watchdog};
 use crate::modbus::mbap::MAX_ADU_LEN;
+use crate::settings::Name;
 
 /// The Modbus TCP port (Implementation Guide V1.0b, 4.1).
 pub const MODBUS_PORT: u16 = 502;
@@ -72,11 +75,14 @@ pub struct Config {
     pub frame_timeout: Duration,
     /// Who may connect and who may write.
     pub access: Access,
+    /// The device name, Read Device Identification's UserApplicationName
+    /// (made from the settings with the MAC's default when none is set).
+    pub name: Name,
 }
 
 impl Config {
     /// Port 502, 8 connections, every unit id, `seed` writes, 60 s idle, 2 s
-    /// per frame, everyone may connect and write.
+    /// per frame, everyone may connect and write, no name.
     pub const DEFAULT: Self = Self {
         port: MODBUS_PORT,
         max_connections: MAX_CONNECTIONS,
@@ -84,6 +90,7 @@ impl Config {
         idle_timeout: Some(IDLE_TIMEOUT),
         frame_timeout: FRAME_TIMEOUT,
         access: Access::OPEN,
+        name: Name::UNSET,
     };
 }
 
@@ -95,15 +102,16 @@ impl Default for Config {
 
 /// What the server answers with: the device, or a test's stand-in.
 pub trait Service {
-    /// Answers one request frame into `reply` under `policy`.
-    fn respond(&self, frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], policy: &Policy) -> Outcome;
+    /// Answers one request frame into `reply` under `policy`, as the device
+    /// named `name`.
+    fn respond(&self, frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], policy: &Policy, name: &Name) -> Outcome;
     /// Where the server counts what it sees.
     fn stats(&self) -> &Stats;
 }
 
 impl Service for crate::device::Device<'_> {
-    fn respond(&self, frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], policy: &Policy) -> Outcome {
-        crate::device::Device::respond(self, frame, reply, policy)
+    fn respond(&self, frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], policy: &Policy, name: &Name) -> Outcome {
+        crate::device::Device::respond(self, frame, reply, policy, name)
     }
 
     fn stats(&self) -> &Stats {
@@ -173,10 +181,26 @@ impl<'a, S: Service> Server<'a, S> {
         self.service.stats()
     }
 
-    /// Answers one request frame into `reply` under the configured policy.
+    /// Answers one request frame into `reply` under the configuration in force.
     pub fn respond(&self, frame: &[u8], reply: &mut [u8; MAX_ADU_LEN]) -> Outcome {
-        let policy = self.with_config(|config| config.policy);
-        self.service.respond(frame, reply, &policy)
+        self.answer(frame, reply, false).0
+    }
+
+    /// Answers one request frame into `reply` under the configuration in
+    /// force, for a client that may not write when `read_only`; also returns
+    /// the idle timeout in force. The configuration stays locked while the
+    /// service answers, so the device name is read in place, never copied
+    /// (the service takes the image lock inside: a nested critical section).
+    pub(crate) fn answer(
+        &self,
+        frame: &[u8],
+        reply: &mut [u8; MAX_ADU_LEN],
+        read_only: bool,
+    ) -> (Outcome, Option<Duration>) {
+        self.with_config(|config| {
+            let policy = Policy { read_only: config.policy.read_only || read_only, ..config.policy };
+            (self.service.respond(frame, reply, &policy, &config.name), config.idle_timeout)
+        })
     }
 }
 

@@ -8,7 +8,7 @@ use embassy_futures::select::{Either, select};
 use embassy_time::{Instant, with_deadline};
 use embedded_io_async::{Read, Write};
 
-use super::{Outcome, Policy, Server, Service, SlotId, Stats};
+use super::{Outcome, Server, Service, SlotId, Stats};
 use crate::modbus::be_u16;
 use crate::modbus::mbap::{self, HEADER_LEN, MAX_ADU_LEN};
 
@@ -104,17 +104,15 @@ async fn run<T: Read + Write, S: Service>(
             };
             let Some(frame) = pending.get(..len) else { return Err(Error::Internal) };
             // The configuration in force for each request: a change applies at once.
-            let (policy, idle_timeout) = server.with_config(|config| {
-                (Policy { read_only: config.policy.read_only || read_only, ..config.policy }, config.idle_timeout)
-            });
-            match server.service().respond(frame, &mut reply, &policy) {
-                Outcome::Reply { len, function, exception, .. } => {
+            let (outcome, idle_timeout) = server.answer(frame, &mut reply, read_only);
+            match outcome {
+                Outcome::Reply { len, function, write, exception, .. } => {
                     // The address is read only when a line is logged (the
                     // log macros evaluate their arguments only then).
                     let address = || be_u16(frame, ADDRESS).unwrap_or(0);
                     if let Some(exception) = exception {
                         info!("slot {}: function {:#x} at {}: {}", slot, u8::from(function), address(), exception);
-                    } else if function.is_write() {
+                    } else if write {
                         debug!("slot {}: function {:#x} wrote at {}", slot, u8::from(function), address());
                     }
                     let Some(out) = reply.get(..len) else { return Err(Error::Internal) };

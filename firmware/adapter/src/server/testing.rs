@@ -41,12 +41,15 @@ impl crate::io::OutputPins for RecordingPins {
     }
 }
 
+/// The board the tests' devices say they are.
+pub const MODEL: &str = "test-board";
+
 /// A server over a fresh device with recording pins (both leaked: tests only).
 pub fn server_with(
     config: super::Config,
     watchdog: super::Watchdog,
 ) -> (&'static super::Server<'static, crate::device::Device<'static>>, &'static RecordingPins) {
     let pins: &'static RecordingPins = Box::leak(Box::default());
-    let device = Box::leak(Box::new(crate::device::Device::new(watchdog, crate::VERSION, pins)));
+    let device = Box::leak(Box::new(crate::device::Device::new(watchdog, MODEL, pins)));
     (Box::leak(Box::new(super::Server::new(config, device))), pins)
 }

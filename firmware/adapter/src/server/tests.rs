@@ -9,6 +9,7 @@ use test_support::framer::{adu, split_replies};
 
 use super::testing::{Clock, RecordingPins, server_with};
 use super::*;
+use crate::modbus::mbap::MAX_ADU_LEN;
 
 const WRITE_COIL_16_ON: [u8; 5] = [0x05, 0x00, 0x10, 0xff, 0x00];
 const READ_128: [u8; 5] = [0x03, 0x00, 0x80, 0x00, 0x01];
@@ -74,6 +75,47 @@ fn sessions_count_bad_lengths_and_timeouts() {
     let c = shared.stats().snapshot();
     assert_eq!((c.bad_length, c.timeouts), (1, 1));
     drop(wire);
+}
+
+#[test]
+fn identification_answers_the_name_in_force() {
+    let _clock = Clock::take();
+    let named = |name: &str| Config { name: crate::settings::Name::parse(name).unwrap(), ..Config::DEFAULT };
+    let (shared, _) = shared_with(named("press-4"));
+    let (wire, mut end) = Wire::new();
+    let mut session = pin!(serve(&mut end, shared, 0));
+    let user_application_name = [0x2b, 0x0e, 0x04, 0x06];
+    wire.send(&adu(1, 0, 1, &user_application_name));
+    assert!(poll_once(session.as_mut()).is_pending());
+    // The settings API changes the name: the next request sees it.
+    shared.set_config(named("press-5"));
+    wire.send(&adu(2, 0, 1, &user_application_name));
+    assert!(poll_once(session.as_mut()).is_pending());
+    let replies = split_replies(&wire.take_replies());
+    assert_eq!(replies[0][7..], [&[0x2b, 0x0e, 0x04, 0x82, 0, 0, 1, 6, 7][..], b"press-4"].concat());
+    assert_eq!(replies[1][7..], [&[0x2b, 0x0e, 0x04, 0x82, 0, 0, 1, 6, 7][..], b"press-5"].concat());
+    let mut reply = [0u8; MAX_ADU_LEN];
+    let Outcome::Reply { len, .. } = shared.respond(&adu(3, 0, 1, &[0x2b, 0x0e, 0x04, 0x05]), &mut reply) else {
+        panic!()
+    };
+    assert_eq!(reply[14..len], [&[5, 10][..], b"test-board"].concat(), "the device's model");
+}
+
+#[test]
+fn a_read_only_client_may_not_clear_the_counters() {
+    let _clock = Clock::take();
+    let (shared, _) = shared_with(Config::DEFAULT);
+    shared.slots().open(0, 8, embassy_time::Instant::now(), [198, 18, 0, 1], true);
+    let (wire, mut end) = Wire::new();
+    let mut session = pin!(serve(&mut end, shared, 0));
+    wire.send(&adu(1, 0, 1, &READ_128));
+    wire.send(&adu(2, 0, 1, &[0x08, 0x00, 0x0a, 0x00, 0x00]));
+    wire.send(&adu(3, 0, 1, &[0x08, 0x00, 0x0b, 0x00, 0x00]));
+    assert!(poll_once(session.as_mut()).is_pending());
+    let replies = split_replies(&wire.take_replies());
+    assert_eq!(replies[1][7..], [0x88, 0x01], "Clear Counters is a change: refused");
+    assert_eq!(replies[2][7..], [0x08, 0x00, 0x0b, 0x00, 0x02], "nothing cleared: two requests before");
+    assert_eq!(shared.stats().snapshot().refused_writes, 1);
 }
 
 #[test]

@@ -157,8 +157,9 @@ impl Settings {
         Field::ALL.iter().any(|&field| field.applies() == Applies::AfterReboot && self.differs(new, field))
     }
 
-    /// The Modbus server's configuration.
-    pub fn server_config(&self) -> server::Config {
+    /// The Modbus server's configuration, on a device whose MAC is `mac`
+    /// (the default device name is made from it).
+    pub fn server_config(&self, mac: [u8; 6]) -> server::Config {
         let modbus = &self.modbus;
         server::Config {
             port: modbus.port,
@@ -170,6 +171,7 @@ impl Settings {
             },
             frame_timeout: server::FRAME_TIMEOUT,
             access: Access { connect: modbus.allow_connect, write: modbus.allow_write },
+            name: self.device.name.or_default(mac),
         }
     }
 

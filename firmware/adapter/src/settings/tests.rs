@@ -93,15 +93,19 @@ fn the_whole_is_validated_with_an_error_per_field() {
 
 #[test]
 fn the_defaults_make_the_documented_server() {
-    let config = Settings::DEFAULT.server_config();
-    assert_eq!(config, server::Config::DEFAULT);
+    let mac = [2, 0, 0, 0xab, 0xcd, 0xef];
+    let config = Settings::DEFAULT.server_config(mac);
+    assert_eq!(config, server::Config { name: Name::parse("mbio-abcdef").unwrap(), ..server::Config::DEFAULT });
+    let mut named = Settings::DEFAULT;
+    named.set(Field::DeviceName, "press-4").unwrap();
+    assert_eq!(named.server_config(mac).name.as_str(), "press-4", "a name set wins over the MAC's");
     let mut s = Settings::DEFAULT;
     s.set(Field::WatchdogTimeout, "500").unwrap();
     s.set(Field::WatchdogSafeAo2, "4000").unwrap();
     s.set(Field::ModbusIdleTimeout, "0").unwrap();
     assert_eq!(s.watchdog().timeout, Some(Duration::from_millis(500)));
     assert_eq!(s.watchdog().safe_state.analog, [0, 4000]);
-    assert_eq!(s.server_config().idle_timeout, None);
+    assert_eq!(s.server_config(mac).idle_timeout, None);
     assert_eq!(Settings::DEFAULT.watchdog(), Watchdog::OFF);
 }
 

@@ -79,9 +79,15 @@ impl Name {
 
     /// The name as text (empty when unset).
     pub fn as_str(&self) -> &str {
-        let (bytes, _) = self.bytes.split_at(usize::from(self.len).min(MAX_NAME_LEN));
         // Only ASCII is ever pushed.
-        core::str::from_utf8(bytes).unwrap_or_default()
+        core::str::from_utf8(self.as_bytes()).unwrap_or_default()
+    }
+
+    /// The name's bytes, ASCII (none when unset): as a protocol sends it,
+    /// with no check to run.
+    pub fn as_bytes(&self) -> &[u8] {
+        let (bytes, _) = self.bytes.split_at(usize::from(self.len).min(MAX_NAME_LEN));
+        bytes
     }
 }
 

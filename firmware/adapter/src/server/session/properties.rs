@@ -37,7 +37,8 @@ fn quantity() -> impl Strategy<Value = u16> {
     prop_oneof![4 => 0u16..=130, 1 => 0u16..=2100, 1 => any::<u16>()]
 }
 
-/// A request PDU: mostly the six functions with plausible fields.
+/// A request PDU: mostly the six functions of the map with plausible
+/// fields, some Diagnostics and Read Device Identification.
 fn pdu() -> impl Strategy<Value = Vec<u8>> {
     let head = |code: u8, a: u16, b: u16| {
         let mut pdu = vec![code];
@@ -62,6 +63,13 @@ fn pdu() -> impl Strategy<Value = Vec<u8>> {
         (address(), prop_oneof![0u16..=3, 0u16..=25_000, any::<u16>()]).prop_map(move |(a, v)| head(0x06, a, v)),
         multiple(0x0f, |q| usize::from(q).div_ceil(8)),
         multiple(0x10, |q| 2 * usize::from(q)),
+        (
+            prop_oneof![0u16..=0x14, any::<u16>()],
+            prop_oneof![Just(vec![0, 0]), prop::collection::vec(any::<u8>(), 0..6)]
+        )
+            .prop_map(|(sub, data)| [&[0x08][..], &sub.to_be_bytes(), &data].concat()),
+        (prop_oneof![Just(0x0eu8), any::<u8>()], 0u8..=5, prop_oneof![0u8..=8, any::<u8>()], 0usize..=1)
+            .prop_map(|(mei, code, object, extra)| [&[0x2b, mei, code, object][..], &[0][..extra]].concat()),
         prop::collection::vec(any::<u8>(), 1..12),
     ]
 }
