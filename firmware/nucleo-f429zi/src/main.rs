@@ -96,11 +96,13 @@ async fn start(spawner: Spawner) {
     let config = adapter::net::initial_config(&settings.network, &name);
     let (stack, runner) = embassy_net::new(board.ethernet, config, net::resources(), board.seed);
 
+    #[cfg(feature = "http")]
+    let api = {
+        let platform = http::Nucleo::new(stack, board.mac, settings, board.reset, board.rng);
+        http::api(server, platform, store, &loaded)
+    };
     // The name in force: the settings' (the API may change it), or without
     // the store the factory name, fixed.
-    #[cfg(feature = "http")]
-    let platform = http::Nucleo::new(stack, board.mac, settings, board.reset, board.rng);
-    let api = http::api(server, platform, store, &loaded);
     #[cfg(feature = "http")]
     let names: &'static dyn DeviceName = api.backend();
     #[cfg(not(feature = "http"))]
