@@ -21,6 +21,8 @@ pub mod fmt;
 
 pub mod analog;
 pub mod device;
+#[cfg(feature = "cortex-m")]
+pub mod executor;
 #[cfg(feature = "http")]
 pub mod http;
 pub mod io;

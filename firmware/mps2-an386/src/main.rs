@@ -204,16 +204,7 @@ fn spawn_all(
     spawner.spawn(link_task(stack, &settings.network, server, names)?);
     #[cfg(feature = "mdns")]
     {
-        #[cfg(feature = "http")]
-        let http_port = Some(adapter::http::HTTP_PORT);
-        #[cfg(not(feature = "http"))]
-        let http_port = None;
-        let services = adapter::mdns::Services {
-            model: MODEL,
-            version: adapter::VERSION,
-            modbus_port: server.config().port,
-            http_port,
-        };
+        let services = adapter::mdns::Services::of_board(MODEL, server.config().port);
         spawner.spawn(mdns_task(stack, names, services)?);
     }
     spawner.spawn(refresh_task(device)?);

@@ -1,59 +1,26 @@
 //! The executor loop, faults, panics and the way out of QEMU.
 //!
-//! The stock cortex-m thread executor sleeps with `wfe`, which QEMU runs as a
-//! busy loop (a host core at 100 %). This one sleeps with `wfi` and keeps a
-//! host core at about 10 % when idle, and reports each sleep to the CPU
-//! load meter (`adapter::load`). A panic or a fault logs through defmt
-//! and ends QEMU through semihosting with a non-zero exit code, so a test
-//! sees it both in the log and in QEMU's exit status.
+//! The executor loop is `adapter::executor`'s: it sleeps with `wfi` (the
+//! stock cortex-m executor's `wfe` is a busy loop in QEMU, a host core at
+//! 100 %; `wfi` keeps it at about 10 % when idle) and measures the CPU
+//! load. A panic or a fault logs through defmt and ends QEMU through
+//! semihosting with a non-zero exit code, so a test sees it both in the log
+//! and in QEMU's exit status.
 
 use core::sync::atomic::{AtomicBool, Ordering};
 
-use adapter::load::CPU_LOAD;
 use cortex_m_rt::{ExceptionFrame, exception};
-use embassy_executor::{Spawner, raw};
-use embassy_time::Instant;
-use static_cell::StaticCell;
+use embassy_executor::Spawner;
 
 /// QEMU's exit code after a panic.
 pub const EXIT_PANIC: i32 = 101;
 /// QEMU's exit code after a hard fault or an unexpected exception.
 pub const EXIT_FAULT: i32 = 102;
 
-/// Set by the executor's pender (from any context); cleared before each poll.
-static WORK: AtomicBool = AtomicBool::new(false);
-
-/// The executor calls this when a task was woken: note it, and leave `wfi`.
-#[unsafe(export_name = "__pender")]
-fn pender(_context: *mut ()) {
-    WORK.store(true, Ordering::Release);
-}
-
-/// Runs the executor forever: `init` spawns the first tasks; between polls
-/// the core sleeps in `wfi` until an interrupt (SysTick, Ethernet) comes.
+/// Runs the executor forever (`adapter::executor`: `wfi` between polls,
+/// each sleep reported to the CPU load meter): `init` spawns the first tasks.
 pub fn run(init: impl FnOnce(Spawner)) -> ! {
-    static EXECUTOR: StaticCell<raw::Executor> = StaticCell::new();
-    let executor: &'static raw::Executor = EXECUTOR.init(raw::Executor::new(core::ptr::null_mut()));
-    init(executor.spawner());
-    loop {
-        WORK.store(false, Ordering::Release);
-        // SAFETY: `poll` is only ever called here, never re-entered.
-        unsafe { executor.poll() };
-        // With interrupts masked, check for work and sleep: an interrupt that
-        // arrives after the check still ends `wfi`, and runs right after.
-        let asleep = Instant::now();
-        let slept = cortex_m::interrupt::free(|_| {
-            let idle = !WORK.load(Ordering::Acquire);
-            if idle {
-                cortex_m::asm::wfi();
-            }
-            idle
-        });
-        if slept {
-            // The interrupt that woke the core has run: its time counts as asleep.
-            CPU_LOAD.slept(asleep, Instant::now());
-        }
-    }
+    adapter::executor::run(init)
 }
 
 /// Ends the QEMU process with `code` (semihosting `SYS_EXIT_EXTENDED`).

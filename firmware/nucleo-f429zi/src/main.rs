@@ -20,7 +20,6 @@ mod http;
 mod leds;
 mod net;
 mod pins;
-mod runtime;
 mod safety;
 
 use adapter::device::{self, Device};
@@ -65,7 +64,8 @@ const fn robot() -> BoardRobot {
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
-    runtime::run(|spawner| spawner.spawn(unwrap!(start(spawner))))
+    // The executor loop measures the CPU load (adapter::executor).
+    adapter::executor::run(|spawner| spawner.spawn(unwrap!(start(spawner))))
 }
 
 /// Brings the board up, loads the settings and starts every task.
@@ -136,16 +136,7 @@ async fn start(spawner: Spawner) {
     }
     #[cfg(feature = "mdns")]
     {
-        #[cfg(feature = "http")]
-        let http_port = Some(adapter::http::HTTP_PORT);
-        #[cfg(not(feature = "http"))]
-        let http_port = None;
-        let services = adapter::mdns::Services {
-            model: MODEL,
-            version: adapter::VERSION,
-            modbus_port: server.config().port,
-            http_port,
-        };
+        let services = adapter::mdns::Services::of_board(MODEL, server.config().port);
         spawner.spawn(unwrap!(mdns_task(stack, names, services)));
     }
     let config = server.config();

@@ -1,15 +1,19 @@
-//! The executor loop: embassy's raw executor, polled until no task is
-//! ready, then the core sleeps in `wfi` until an interrupt (the time
-//! driver's alarm, Ethernet, an input edge). Each sleep is reported to the
-//! CPU load meter (`adapter::load`), which is what the stock thread
-//! executor cannot do.
+//! The boards' executor loop (feature `cortex-m`): embassy's raw executor,
+//! polled until no task is ready, then the core sleeps in `wfi` until an
+//! interrupt comes, and each sleep is reported to [`CPU_LOAD`].
+//!
+//! It replaces embassy's stock cortex-m thread executor, which cannot
+//! report its sleeps, and which sleeps with `wfe`: QEMU runs `wfe` as a busy
+//! loop (a host core at 100 %), `wfi` as a sleep. This module exports the
+//! executor's `__pender`, so a program that links it has no other executor.
 
 use core::sync::atomic::{AtomicBool, Ordering};
 
-use adapter::load::CPU_LOAD;
 use embassy_executor::{Spawner, raw};
 use embassy_time::Instant;
 use static_cell::StaticCell;
+
+use crate::load::CPU_LOAD;
 
 /// Set by the executor's pender (from any context); cleared before each poll.
 static WORK: AtomicBool = AtomicBool::new(false);
@@ -20,7 +24,7 @@ fn pender(_context: *mut ()) {
     WORK.store(true, Ordering::Release);
 }
 
-/// Runs the executor forever: `init` spawns the first task.
+/// Runs the executor forever: `init` spawns the first tasks.
 pub fn run(init: impl FnOnce(Spawner)) -> ! {
     static EXECUTOR: StaticCell<raw::Executor> = StaticCell::new();
     let executor: &'static raw::Executor = EXECUTOR.init(raw::Executor::new(core::ptr::null_mut()));
