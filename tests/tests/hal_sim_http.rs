@@ -257,7 +257,15 @@ fn a_power_cut_during_a_save_leaves_the_old_or_the_new_settings() {
             acknowledged += 1;
         }
         let status = ok(sim.get("/api/status"));
-        assert_eq!(status["storage"]["ok"], true, "cut {n} (seed {seed}): {status}");
+        // Until a first save has landed, a cut one leaves a torn record on
+        // an otherwise erased range, which the store cannot tell from
+        // foreign content: factory settings and `ok: false` (the store's
+        // own tests allow the same), mended by the next save. After that,
+        // every cut leaves the storage ok.
+        let factory = ("mbio-53494d".to_owned(), 60);
+        if !(current == factory && found == factory) {
+            assert_eq!(status["storage"]["ok"], true, "cut {n} (seed {seed}): {status}");
+        }
         if found == new {
             took_new += 1
         } else {

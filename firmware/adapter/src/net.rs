@@ -103,17 +103,26 @@ pub async fn run<S: Service, N: DeviceName + ?Sized>(
     let mut address = false;
     // While DHCP runs with a fallback address: when the fallback applies.
     let mut fallback_at = None;
+    // The first look: a link up at start runs on the stack's initial
+    // configuration (`initial_config`, the same as below), which may
+    // already serve clients; setting it again would restart DHCP over a
+    // lease, or reset connections accepted in the meantime.
+    let mut first = true;
     loop {
         let link_now = stack.is_link_up();
         if link_now && !link {
             info!("link up");
             fallback_at = match (settings.mode, &fallback) {
                 (NetMode::Static, Some(config)) => {
-                    stack.set_config_v4(ConfigV4::Static(config.clone()));
+                    if !first {
+                        stack.set_config_v4(ConfigV4::Static(config.clone()));
+                    }
                     None
                 }
                 (_, fallback) => {
-                    stack.set_config_v4(ConfigV4::Dhcp(dhcp_config(&name.device_name())));
+                    if !first {
+                        stack.set_config_v4(ConfigV4::Dhcp(dhcp_config(&name.device_name())));
+                    }
                     let timeout = Duration::from_secs(u64::from(settings.dhcp_timeout_s));
                     fallback.as_ref().map(|_| Instant::now() + timeout)
                 }
@@ -123,6 +132,7 @@ pub async fn run<S: Service, N: DeviceName + ?Sized>(
             server.slots().evict_all();
         }
         link = link_now;
+        first = false;
 
         // DHCP gave nothing in time: the fallback applies (at once, so the
         // address is logged below in this same tick, before any client).
