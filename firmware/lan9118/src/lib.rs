@@ -683,9 +683,18 @@ impl<I: Interface> embassy_net_driver::TxToken for TxToken<'_, I> {
         for command in tx_commands(frame.len(), self.tag) {
             self.io.write(reg::TX_DATA_FIFO, command);
         }
-        for chunk in frame.chunks(4) {
+        // Whole words as one load each (a byte-by-byte loop here cost 40
+        // instructions a word on the Cortex-M4: scripts/bench-mcu), then the
+        // tail, zero-padded.
+        let mut words = frame.chunks_exact(4);
+        for word in &mut words {
+            let word: [u8; 4] = word.try_into().unwrap_or_default();
+            self.io.write(reg::TX_DATA_FIFO, u32::from_le_bytes(word));
+        }
+        let tail = words.remainder();
+        if !tail.is_empty() {
             let mut word = [0u8; 4];
-            word.iter_mut().zip(chunk).for_each(|(to, from)| *to = *from);
+            word.iter_mut().zip(tail).for_each(|(to, from)| *to = *from);
             self.io.write(reg::TX_DATA_FIFO, u32::from_le_bytes(word));
         }
         self.stats.tx_frames = self.stats.tx_frames.wrapping_add(1);
