@@ -174,7 +174,11 @@ pub trait Interface {
     fn read(&mut self, offset: u8) -> u32;
     /// Writes the register at `offset`.
     fn write(&mut self, offset: u8, value: u32);
-    /// Registers `waker` to be woken by the next interrupt, and unmasks the line.
+    /// Registers `waker` to be woken by the next interrupt, and unmasks the
+    /// line. An interrupt latched while the line was masked, for events the
+    /// driver has handled since, may be dropped first (the driver reads
+    /// `INT_STS` again after arming, so an event that came meanwhile is not
+    /// lost).
     fn arm(&mut self, waker: &Waker);
 }
 
@@ -432,6 +436,11 @@ impl<I: Interface> Lan9118<I> {
         }
         self.drain_tx_status();
         self.io.arm(waker);
+        // An event after the read above raised the line anew, and `arm` may
+        // have dropped that interrupt with the stale one: look once more.
+        if self.io.read(reg::INT_STS) & self.int_en != 0 {
+            waker.wake_by_ref();
+        }
     }
 
     fn count_dropped(&mut self) {
