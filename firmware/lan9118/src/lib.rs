@@ -503,14 +503,17 @@ impl<I: Interface> Lan9118<I> {
         None
     }
 
-    /// Reads `words` data words into `self.rx` (the CRC lands past the frame).
+    /// Reads `words` data words into `self.rx` (the CRC lands past the
+    /// frame); words the buffer cannot hold are read and dropped, so the
+    /// FIFO stays in step.
     fn read_words(&mut self, words: usize) {
-        let mut chunks = self.rx.chunks_exact_mut(4);
-        for _ in 0..words {
-            let word = self.io.read(reg::RX_DATA_FIFO).to_le_bytes();
-            if let Some(chunk) = chunks.next() {
-                chunk.copy_from_slice(&word);
-            }
+        let kept = words.min(FRAME_BUFFER_LEN / 4);
+        let io = &mut self.io;
+        for chunk in self.rx.chunks_exact_mut(4).take(kept) {
+            chunk.copy_from_slice(&io.read(reg::RX_DATA_FIFO).to_le_bytes());
+        }
+        for _ in kept..words {
+            io.read(reg::RX_DATA_FIFO);
         }
     }
 
