@@ -35,17 +35,19 @@ pub fn run(init: impl FnOnce(Spawner)) -> ! {
         unsafe { executor.poll() };
         // With interrupts masked, check for work and sleep: an interrupt that
         // arrives after the check still ends `wfi`, and runs right after.
-        let asleep = Instant::now();
-        let slept = cortex_m::interrupt::free(|_| {
-            let idle = !WORK.load(Ordering::Acquire);
-            if idle {
-                cortex_m::asm::wfi();
+        // The clock is read only when the core goes to sleep, not after
+        // every poll (scripts/bench-mcu counts each read).
+        let asleep = cortex_m::interrupt::free(|_| {
+            if WORK.load(Ordering::Acquire) {
+                return None;
             }
-            idle
+            let from = Instant::now();
+            cortex_m::asm::wfi();
+            Some(from)
         });
-        if slept {
+        if let Some(from) = asleep {
             // The interrupt that woke the core has run: its time counts as asleep.
-            CPU_LOAD.slept(asleep, Instant::now());
+            CPU_LOAD.slept(from, Instant::now());
         }
     }
 }

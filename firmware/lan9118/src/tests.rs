@@ -4,7 +4,9 @@
 //! behind `MAC_CSR_CMD`, PHY registers behind `MII_ACC`.
 
 use std::collections::{HashMap, VecDeque};
-use std::task::{Context, Waker};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::task::{Context, Wake, Waker};
 
 use embassy_net_driver::{Driver, HardwareAddress, LinkState, RxToken as _, TxToken as _};
 
@@ -45,6 +47,9 @@ struct Chip {
     link: bool,
     partner: u16,
     arms: usize,
+    /// `INT_STS` bits an event raises while the line is being armed (the
+    /// moment the board may drop a latched interrupt).
+    event_on_arm: u32,
 }
 
 impl Chip {
@@ -65,6 +70,7 @@ impl Chip {
             link: true,
             partner: 0x0f71,
             arms: 0,
+            event_on_arm: 0,
         };
         chip.reset();
         chip
@@ -250,6 +256,7 @@ impl Interface for Chip {
 
     fn arm(&mut self, _waker: &Waker) {
         self.arms += 1;
+        self.int_sts |= std::mem::take(&mut self.event_on_arm);
     }
 }
 
@@ -614,4 +621,29 @@ fn only_the_accepted_multicast_group_passes_the_filter() {
     driver.accept_multicast(&[]).unwrap();
     assert!(!driver.io.offer(&frame_to(MDNS)), "an empty list: no multicast again");
     assert_eq!(driver.io.mac_csr[&mac::CR] & mac::CR_HPFILT, 0);
+}
+
+/// Counts its wakes.
+#[derive(Default)]
+struct Wakes(AtomicUsize);
+
+impl Wake for Wakes {
+    fn wake(self: Arc<Self>) {
+        self.0.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+#[test]
+fn an_event_while_the_line_is_armed_again_wakes_the_task() {
+    let mut driver = driver();
+    let wakes = Arc::new(Wakes::default());
+    let waker = Waker::from(wakes.clone());
+    let _ = driver.link_state(&mut Context::from_waker(&waker));
+    assert_eq!(wakes.0.load(Ordering::Relaxed), 0, "nothing pending, nothing to wake for");
+    // A frame arrives after INT_STS was read and acknowledged, as the line
+    // is armed: the board may have dropped its interrupt with the stale one.
+    driver.io.rx_status.push_back(ARP_REQUEST_STATUS);
+    driver.io.event_on_arm = int::RSFL;
+    let _ = driver.link_state(&mut Context::from_waker(&waker));
+    assert_eq!(wakes.0.load(Ordering::Relaxed), 1, "the driver looks again and wakes its task");
 }

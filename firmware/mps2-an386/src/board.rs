@@ -144,6 +144,12 @@ mod hw {
 
         fn arm(&mut self, waker: &Waker) {
             ETHERNET_WAKER.register(waker);
+            // The line was still high when the handler returned, so the NVIC
+            // latched the interrupt again; the driver has handled its events
+            // since. Unmasked as it is, it would run the handler and poll the
+            // stack once more for nothing (scripts/bench-mcu). The driver
+            // reads the chip again after this, so a new event is not lost.
+            NVIC::unpend(Irq(LAN9118_IRQ));
             // SAFETY: the handler only masks the line and wakes the waker;
             // no critical section depends on the line being masked.
             unsafe { NVIC::unmask(Irq(LAN9118_IRQ)) };

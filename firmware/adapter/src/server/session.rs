@@ -2,10 +2,11 @@
 //! `embedded-io-async` stream (an embassy-net socket, or a test pipe).
 
 use core::fmt;
-use core::future::Future;
+use core::future::{Future, poll_fn};
+use core::pin::{Pin, pin};
+use core::task::Poll;
 
-use embassy_futures::select::{Either, select};
-use embassy_time::{Instant, with_deadline};
+use embassy_time::{Instant, Timer};
 use embedded_io_async::{Read, Write};
 
 use super::{Outcome, Server, Service, SlotId, Stats};
@@ -116,7 +117,7 @@ async fn run<T: Read + Write, S: Service>(
                         debug!("slot {}: function {:#x} wrote at {}", slot, u8::from(function), address());
                     }
                     let Some(out) = reply.get(..len) else { return Err(Error::Internal) };
-                    let deadline = idle_timeout.map(|t| Instant::now() + t);
+                    let deadline = || idle_timeout.map(|t| Instant::now() + t);
                     guarded(write_all(stream, out), deadline, server, slot).await??;
                 }
                 Outcome::Discard { protocol_id } => warn!("slot {}: discarded protocol id {}", slot, protocol_id),
@@ -135,10 +136,12 @@ async fn run<T: Read + Write, S: Service>(
             frame_started = Some(Instant::now());
         }
 
-        let deadline = server.with_config(|config| match frame_started {
-            Some(started) => Some(started + config.frame_timeout),
-            None => config.idle_timeout.map(|t| last_request + t),
-        });
+        let deadline = || {
+            server.with_config(|config| match frame_started {
+                Some(started) => Some(started + config.frame_timeout),
+                None => config.idle_timeout.map(|t| last_request + t),
+            })
+        };
         let Some(free) = rx.get_mut(filled..) else { return Err(Error::Internal) };
         match guarded(stream.read(free), deadline, server, slot).await {
             Ok(Ok(0)) => return Ok(()),
@@ -150,23 +153,43 @@ async fn run<T: Read + Write, S: Service>(
     }
 }
 
-/// Runs `io` until `deadline` or until the slot is evicted.
+/// Runs `io` until the deadline `deadline()` gives (`None`: none) or until
+/// the slot is evicted.
+///
+/// One future polling the three in turn (the I/O first, then the deadline,
+/// then the eviction), all pinned where they are: nested `select`s and
+/// `with_deadline` moved each future several times per call, a few hundred
+/// instructions a request on the Cortex-M4 (scripts/bench-mcu). `deadline`
+/// is called, and the timer armed, only when the I/O does not complete on
+/// its first poll (a reply's write almost always does).
 async fn guarded<T, E, F: Future<Output = T>, S: Service>(
     io: F,
-    deadline: Option<Instant>,
+    deadline: impl FnOnce() -> Option<Instant>,
     server: &Server<'_, S>,
     slot: SlotId,
 ) -> Result<T, Error<E>> {
-    let timed = async {
-        match deadline {
-            Some(at) => with_deadline(at, io).await.map_err(|_| Error::IdleTimeout),
-            None => Ok(io.await),
+    let mut io = pin!(io);
+    let mut deadline = Some(deadline);
+    let mut timer = None;
+    let mut evicted = pin!(server.slots().evicted(slot));
+    poll_fn(|cx| {
+        if let Poll::Ready(result) = io.as_mut().poll(cx) {
+            return Poll::Ready(Ok(result));
         }
-    };
-    match select(timed, server.slots().evicted(slot)).await {
-        Either::First(result) => result,
-        Either::Second(()) => Err(Error::Evicted),
-    }
+        if let Some(at) = deadline.take().and_then(|deadline| deadline()) {
+            timer = Some(Timer::at(at));
+        }
+        if let Some(timer) = timer.as_mut()
+            && Pin::new(timer).poll(cx).is_ready()
+        {
+            return Poll::Ready(Err(Error::IdleTimeout));
+        }
+        if evicted.as_mut().poll(cx).is_ready() {
+            return Poll::Ready(Err(Error::Evicted));
+        }
+        Poll::Pending
+    })
+    .await
 }
 
 /// `write_all` that reports a zero-length write instead of panicking.
