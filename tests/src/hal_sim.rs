@@ -223,6 +223,17 @@ impl HalSim {
         }
     }
 
+    /// The counters, from the control socket's `get stats`: name to value.
+    pub fn stats(&self) -> std::collections::HashMap<String, u32> {
+        self.control_ok("get stats")
+            .split_whitespace()
+            .map(|pair| {
+                let (name, value) = pair.split_once('=').expect("name=value");
+                (name.to_owned(), value.parse().expect("a count"))
+            })
+            .collect()
+    }
+
     /// Runs `test` on a new thread inside the namespace, on a current-thread
     /// tokio runtime, and returns its result (a panic inside fails the test,
     /// and so does running longer than [`crate::TEST_TIMEOUT`]).

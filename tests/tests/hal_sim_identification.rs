@@ -4,7 +4,6 @@
 //! library sends, the device name changed through the settings API, and a
 //! client outside the write allow-list (docs/data-map.md).
 
-use std::collections::HashMap;
 use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
@@ -52,17 +51,6 @@ async fn count(raw: &mut tokio::net::TcpStream, sub: u8) -> u16 {
 /// Clear Counters (08/000A): its reply.
 async fn clear(raw: &mut tokio::net::TcpStream) -> Vec<u8> {
     ask(raw, 0x080a, &[0x08, 0x00, 0x0a, 0x00, 0x00]).await
-}
-
-/// hal-sim's counters, from its control socket.
-fn stats(sim: &HalSim) -> HashMap<String, u32> {
-    sim.control_ok("get stats")
-        .split_whitespace()
-        .map(|pair| {
-            let (name, value) = pair.split_once('=').expect("name=value");
-            (name.to_owned(), value.parse().expect("a count"))
-        })
-        .collect()
 }
 
 #[test]
@@ -134,7 +122,7 @@ fn the_counters_are_hal_sim_s_own_and_a_clear_empties_them() {
         let mut raw = sim.raw().await;
         raw.write_all(&adu(1, 5, 1, &[0x03, 0x00, 0x80, 0x00, 0x01])).await.unwrap(); // protocol 5: skipped
         assert_eq!(ask(&mut raw, 2, &[0x03, 0x00, 0x80, 0x00, 0x01]).await, [0x03, 0x02, 0x00, 0x00]);
-        let counters = stats(&sim);
+        let counters = sim.stats();
         assert_eq!(count(&mut raw, 0x0b).await, (counters["requests"] + counters["bad_protocol"]) as u16);
         assert_eq!(count(&mut raw, 0x0d).await, 1, "the read past the end");
         assert_eq!(count(&mut raw, 0x0e).await, counters["requests"] as u16 + 2, "with the two reads since");
@@ -144,7 +132,7 @@ fn the_counters_are_hal_sim_s_own_and_a_clear_empties_them() {
         assert_eq!(count(&mut raw, 0x0b).await, 1, "only the clear since");
         assert_eq!(count(&mut raw, 0x0d).await, 0);
     });
-    let counters = stats(&sim);
+    let counters = sim.stats();
     assert_eq!((counters["requests"], counters["bad_address"], counters["bad_protocol"]), (3, 0, 0));
 }
 
@@ -180,6 +168,6 @@ fn a_client_outside_the_write_allow_list_may_read_but_not_clear_the_counters() {
         let mut ctx = sim.connect().await;
         assert_eq!(object(&mut ctx, 0x00).await, Ok(b"mbio".to_vec()), "identification is a read");
     });
-    let counters = stats(&sim);
+    let counters = sim.stats();
     assert_eq!((counters["requests"], counters["refused_writes"], counters["bad_function"]), (3, 1, 0));
 }

@@ -2,24 +2,12 @@
 //! communication watchdog and its safe state, the connect and write
 //! allow-lists, and the diagnostics counters on the control socket.
 
-use std::collections::HashMap;
 use std::time::Duration;
 
 use system_tests::hal_sim::{HalSim, end_within};
 use test_support::framer::adu;
 use tokio::io::AsyncWriteExt;
 use tokio_modbus::prelude::*;
-
-/// `get stats` as a map of counter name to value.
-fn stats(sim: &HalSim) -> HashMap<String, u32> {
-    sim.control_ok("get stats")
-        .split_whitespace()
-        .map(|pair| {
-            let (name, value) = pair.split_once('=').expect("name=value");
-            (name.to_owned(), value.parse().expect("a count"))
-        })
-        .collect()
-}
 
 #[test]
 fn the_watchdog_puts_outputs_in_their_safe_state_until_a_client_writes_again() {
@@ -35,12 +23,12 @@ fn the_watchdog_puts_outputs_in_their_safe_state_until_a_client_writes_again() {
             ctx.read_holding_registers(128, 1).await.unwrap().unwrap();
         }
         assert_eq!(sim.control_ok("get do"), "255");
-        assert_eq!(stats(&sim)["watchdog_trips"], 0);
+        assert_eq!(sim.stats()["watchdog_trips"], 0);
         // Silence: within the timeout plus one 100 ms refresh, the outputs are safe.
         tokio::time::sleep(Duration::from_millis(800)).await;
         assert_eq!(sim.control_ok("get do"), "32768");
         assert_eq!(sim.control_ok("get ao 1"), "4000 0");
-        assert_eq!(stats(&sim)["watchdog_trips"], 1);
+        assert_eq!(sim.stats()["watchdog_trips"], 1);
         // Both views show it; a read re-arms the watchdog but changes nothing.
         assert_eq!(ctx.read_holding_registers(1, 1).await.unwrap().unwrap(), [0x8000]);
         assert!(ctx.read_coils(31, 1).await.unwrap().unwrap()[0]);
@@ -68,8 +56,8 @@ fn clients_outside_the_connect_allow_list_are_refused_at_once() {
             Err(e) => assert_eq!(e.kind(), std::io::ErrorKind::ConnectionReset, "{e}"),
         }
     });
-    assert_eq!(stats(&sim)["refused_connections"], 1);
-    assert_eq!(stats(&sim)["requests"], 0);
+    assert_eq!(sim.stats()["refused_connections"], 1);
+    assert_eq!(sim.stats()["requests"], 0);
     assert!(sim.log().contains("refused 198.18.0.1"), "{}", sim.log());
 
     let allowed = HalSim::start(&["--robot", "idle", "--allow", "198.18.5.0/24,198.18.0.1"]);
@@ -93,7 +81,7 @@ fn clients_outside_the_write_allow_list_may_read_but_not_write() {
         assert_eq!(ctx.read_holding_registers(128, 1).await.unwrap().unwrap(), [0], "nothing was written");
         assert_eq!(sim.control_ok("get do"), "0");
     });
-    let counters = stats(&sim);
+    let counters = sim.stats();
     assert_eq!((counters["refused_writes"], counters["bad_function"]), (4, 0));
 }
 
@@ -112,7 +100,7 @@ fn the_control_socket_reports_the_diagnostics_counters() {
         let end = end_within(&mut raw, Duration::from_secs(2)).await;
         assert!(end.is_closed(), "a bad length closes the connection: {end:?}");
     });
-    let counters = stats(&sim);
+    let counters = sim.stats();
     assert_eq!(counters["requests"], 3);
     assert_eq!((counters["bad_address"], counters["bad_value"]), (1, 1));
     assert_eq!((counters["bad_protocol"], counters["bad_length"], counters["evictions"]), (1, 1, 1));
