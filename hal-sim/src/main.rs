@@ -39,7 +39,7 @@ type ModbusServer = Server<'static, Device<'static>>;
 type Api = Http<'static, SimController>;
 
 /// Sockets in the stack: the Modbus listeners, DHCP's, the HTTP listeners and mDNS's.
-const NET_SOCKETS: usize = SOCKET_POOL + 1 + MAX_HTTP_CONNECTIONS + 1;
+const NET_SOCKETS: usize = adapter::net::STACK_SOCKETS;
 
 /// Exit status for a command line hal-sim cannot run with.
 const EXIT_USAGE: u8 = 2;

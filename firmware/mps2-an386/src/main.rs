@@ -34,16 +34,8 @@ use board::{Leds, Mmio, RamInputs};
 use lan9118::Lan9118;
 use static_cell::StaticCell;
 
-/// Sockets the stack holds: the Modbus listeners, DHCP's, the HTTP listeners and mDNS's.
-const SOCKETS: usize = SOCKET_POOL + 1 + HTTP_SOCKETS + MDNS_SOCKETS;
-#[cfg(feature = "http")]
-const HTTP_SOCKETS: usize = adapter::http::MAX_HTTP_CONNECTIONS;
-#[cfg(not(feature = "http"))]
-const HTTP_SOCKETS: usize = 0;
-#[cfg(feature = "mdns")]
-const MDNS_SOCKETS: usize = 1;
-#[cfg(not(feature = "mdns"))]
-const MDNS_SOCKETS: usize = 0;
+/// Sockets the stack holds (the Modbus listeners, DHCP's, HTTP's, mDNS's).
+const SOCKETS: usize = adapter::net::STACK_SOCKETS;
 
 /// The board, as Read Device Identification (ModelName), `/api/status` and mDNS's TXT name it.
 pub const MODEL: &str = "mps2-an386";

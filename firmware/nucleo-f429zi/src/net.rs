@@ -8,7 +8,6 @@ use embassy_stm32::peripherals::{ETH, ETH_SMA};
 use static_cell::StaticCell;
 
 use crate::ModbusServer;
-use adapter::server::SOCKET_POOL;
 #[cfg(feature = "http")]
 use adapter::settings::NetworkSettings;
 
@@ -25,15 +24,7 @@ pub const RX_PACKETS: usize = 4;
 pub const TX_PACKETS: usize = 3;
 /// Sockets in the stack: the Modbus listeners and DHCP's (and the HTTP
 /// listeners with the `http` feature, mDNS's with `mdns`).
-pub const NET_SOCKETS: usize = SOCKET_POOL + 1 + HTTP_SOCKETS + MDNS_SOCKETS;
-#[cfg(feature = "http")]
-const HTTP_SOCKETS: usize = adapter::http::MAX_HTTP_CONNECTIONS;
-#[cfg(not(feature = "http"))]
-const HTTP_SOCKETS: usize = 0;
-#[cfg(feature = "mdns")]
-const MDNS_SOCKETS: usize = 1;
-#[cfg(not(feature = "mdns"))]
-const MDNS_SOCKETS: usize = 0;
+pub const NET_SOCKETS: usize = adapter::net::STACK_SOCKETS;
 
 /// The DMA descriptors and frame buffers (in SRAM: the MAC's DMA cannot reach CCM RAM).
 pub fn packets() -> &'static mut PacketQueue<TX_PACKETS, RX_PACKETS> {
