@@ -215,7 +215,8 @@ pub fn http(data: &[u8]) {
     let written = wire.take_replies();
     let response = (!written.is_empty()).then(|| one_response(&written));
     let status = response.as_ref().map(|r| r.status);
-    // The request line as picoserve splits it: UTF-8, words between
+    // The request line, split more loosely than the server does (it takes
+    // only single spaces between the words): UTF-8, words between
     // whitespace (Unicode's), the path before any `?` or `#`.
     let request_line = input.stream.split(|&b| b == b'\n').next().unwrap_or_default();
     let mut words = std::str::from_utf8(request_line).unwrap_or_default().split_whitespace();
@@ -223,7 +224,8 @@ pub fn http(data: &[u8]) {
     let target = words.next().unwrap_or_default();
     let path = target.split(['?', '#']).next().unwrap_or_default();
     let asked = |m: &str, p: &str| method == m && path == p;
-    // picoserve removes NUL bytes from the header fields before it reads them.
+    // An upper bound on who may change things: the credentials anywhere
+    // in the stream, even split by NUL bytes (the server refuses those).
     let without_nul: Vec<u8> = input.stream.iter().copied().filter(|&b| b != 0).collect();
     let may_change = !flag(HTTP_OUTSIDE) && (password.is_none() || contains(&without_nul, credentials().as_bytes()));
 

@@ -210,7 +210,7 @@ fn http_seeds() -> Vec<Vec<u8>> {
         ]);
     }
     seeds.push(seed(HTTP_PASSWORD_SET, &[], &requests[11]));
-    // picoserve removes NUL bytes from header fields: these credentials are right.
+    // Right credentials but for a NUL byte inside them: refused.
     let nul = "Authorization: Basic YWRtaW46czNjcmV0LX\0Bhc3M=\r\n";
     seeds.push(seed(HTTP_PASSWORD_SET, &[], &http_request("POST", "/api/reboot", nul, "")));
     seeds

@@ -1,19 +1,14 @@
 //! The endpoints (DEVICE.md section 2): routing, who may change things, and
 //! the JSON documents each one reads and writes.
 
-use core::cell::Cell;
-
 use embassy_time::{Instant, Timer};
-use picoserve::ResponseSent;
-use picoserve::io::Read;
-use picoserve::request::{Path, Request, RequestBodyConnection, RequestParts};
-use picoserve::response::{Response, ResponseWriter, StatusCode};
-use picoserve::routing::PathRouterService;
 
 use super::auth::{self, Credentials, MAX_CREDENTIALS_LEN};
 use super::backend::{Backend, Refusal, RobotSource};
 use super::json::{Malformed, Out, Reader, Str, Value};
 use super::page;
+use super::request::Request;
+use super::response::{Response, Status};
 use super::{AUTH_FAILURE_DELAY, Action, Http, LOCATE_DURATION, MAX_PASSWORD_LEN, MIN_PASSWORD_LEN, REALM_HEADER};
 use crate::io::AnalogType;
 use crate::map::Image;
@@ -80,20 +75,32 @@ pub(super) fn route(method: &str, path: &str) -> Result<Endpoint, Miss> {
 /// buffer. (A flag, not the body itself: a reply lives across `.await`s,
 /// in every connection's future, where each byte more is static RAM.)
 #[derive(Clone, Copy, Debug)]
-struct Reply {
-    status: StatusCode,
+pub(super) struct Reply {
+    status: Status,
     header: Option<(&'static str, &'static str)>,
     page: bool,
 }
 
 impl Reply {
-    const fn new(status: StatusCode) -> Self {
+    pub(super) const fn new(status: Status) -> Self {
         Self { status, header: None, page: false }
+    }
+
+    /// The response: the page, or the JSON in `out` (a 500 if it did not fit).
+    pub(super) fn response<'o>(mut self, out: &'o mut Out<'_>) -> Response<'o> {
+        if out.overflowed() {
+            self = refusal(out, Status::INTERNAL_SERVER_ERROR, "response", "too large");
+            if out.overflowed() {
+                out.clear();
+            }
+        }
+        let (content_type, body) = if self.page { (page::CONTENT_TYPE, page::PAGE) } else { (JSON, out.as_bytes()) };
+        Response { status: self.status, content_type, header: self.header, body }
     }
 }
 
 /// `{"errors": {key: message}}` with one request-level key.
-fn refusal(out: &mut Out<'_>, status: StatusCode, key: &str, message: &str) -> Reply {
+fn refusal(out: &mut Out<'_>, status: Status, key: &str, message: &str) -> Reply {
     out.clear();
     out.text("{\"errors\":{");
     out.string(key);
@@ -103,143 +110,93 @@ fn refusal(out: &mut Out<'_>, status: StatusCode, key: &str, message: &str) -> R
     Reply::new(status)
 }
 
-/// One connection's view of the API: who is asking, where the response is
-/// written, and what to do once it has gone out.
-pub(super) struct Api<'h, 'b, 'r, B: Backend> {
+/// One request's view of the API: who is asking.
+pub(super) struct Api<'h, 'b, B: Backend> {
     pub(super) http: &'h Http<'b, B>,
     /// The client's IPv4 address (`None`: not IPv4, never allowed to change things).
     pub(super) peer: Option<[u8; 4]>,
-    /// The response body's buffer, taken by the one request served.
-    pub(super) response: Cell<Option<&'r mut [u8]>>,
-    /// A reboot or factory reset accepted, run after the connection closes.
-    pub(super) action: Cell<Option<Action>>,
 }
 
-impl<B: Backend> PathRouterService for &Api<'_, '_, '_, B> {
-    async fn call_path_router_service<R: Read, W: ResponseWriter<Error = R::Error>>(
-        &self,
-        _state: &(),
-        _path_parameters: (),
-        _path: Path<'_>,
-        request: Request<'_, R>,
-        response_writer: W,
-    ) -> Result<ResponseSent, W::Error> {
-        // One request per connection: the buffer is there. Were it not, the
-        // empty one gives a 500 with no body.
-        let mut none = [0u8; 0];
-        let buffer = self.response.take().unwrap_or(&mut none);
-        let mut out = Out::new(buffer);
-        let Request { parts, mut body_connection } = request;
-        let mut reply = self.respond(&parts, &mut body_connection, &mut out).await;
-        if out.overflowed() {
-            reply = refusal(&mut out, StatusCode::INTERNAL_SERVER_ERROR, "response", "too large");
-            if out.overflowed() {
-                out.clear();
-            }
-        }
-        let connection = body_connection.finalize().await?;
-        // One response type for the JSON and the page: picoserve's response
-        // writing is generic, and each type would be another copy in flash.
-        let (content_type, body) = if reply.page { (page::CONTENT_TYPE, page::PAGE) } else { (JSON, out.as_bytes()) };
-        let response = Response::new(reply.status, body)
-            .with_content_type(content_type)
-            .with_headers(("Cache-Control", "no-store"))
-            .with_headers(reply.header);
-        response_writer.write_response(connection, response).await
-    }
-}
-
-impl<B: Backend> Api<'_, '_, '_, B> {
+impl<B: Backend> Api<'_, '_, B> {
     fn backend(&self) -> &B {
         self.http.backend
     }
 
-    async fn respond<R: Read>(
-        &self,
-        parts: &RequestParts<'_>,
-        body: &mut RequestBodyConnection<'_, R>,
-        out: &mut Out<'_>,
-    ) -> Reply {
-        let endpoint = match route(parts.method(), parts.path().encoded()) {
+    /// Answers `request` into `out`: the reply, and what is left to do
+    /// once it has gone out.
+    pub(super) async fn respond(&self, request: &Request<'_>, out: &mut Out<'_>) -> (Reply, Option<Action>) {
+        let mut action = None;
+        let reply = self.answer(request, out, &mut action).await;
+        (reply, action)
+    }
+
+    async fn answer(&self, request: &Request<'_>, out: &mut Out<'_>, action: &mut Option<Action>) -> Reply {
+        let endpoint = match route(request.method, request.path) {
             Ok(endpoint) => endpoint,
-            Err(Miss::NotFound) => return refusal(out, StatusCode::NOT_FOUND, "request", "no such resource"),
+            Err(Miss::NotFound) => return refusal(out, Status::NOT_FOUND, "request", "no such resource"),
             Err(Miss::MethodNotAllowed(allowed)) => {
-                let reply = refusal(out, StatusCode::METHOD_NOT_ALLOWED, "request", "method not allowed here");
+                let reply = refusal(out, Status::METHOD_NOT_ALLOWED, "request", "method not allowed here");
                 return Reply { header: Some(("Allow", allowed)), ..reply };
             }
         };
         match endpoint {
             Endpoint::Page => {
-                let encodings = parts.headers().get("accept-encoding").map(|value| value.as_raw());
-                if !page::accepts_gzip(encodings) {
-                    return refusal(out, StatusCode::NOT_ACCEPTABLE, "request", page::NOT_ACCEPTABLE);
+                if !page::accepts_gzip(request.accept_encoding) {
+                    return refusal(out, Status::NOT_ACCEPTABLE, "request", page::NOT_ACCEPTABLE);
                 }
-                return Reply {
-                    status: StatusCode::OK,
-                    header: Some(("Content-Encoding", page::ENCODING)),
-                    page: true,
-                };
+                return Reply { status: Status::OK, header: Some(("Content-Encoding", page::ENCODING)), page: true };
             }
             Endpoint::Status => {
                 self.status(out);
-                return Reply::new(StatusCode::OK);
+                return Reply::new(Status::OK);
             }
             Endpoint::GetSettings => {
                 settings_document(out, &self.backend().settings(), self.backend().password_set(), None);
-                return Reply::new(StatusCode::OK);
+                return Reply::new(Status::OK);
             }
             _ => {}
         }
-        if let Err(reply) = self.authorize(parts, out).await {
+        if let Err(reply) = self.authorize(request, out).await {
             return reply;
         }
         match endpoint {
-            Endpoint::PutSettings | Endpoint::PutPassword => {
-                let bytes = match body.body().read_all().await {
-                    Ok(bytes) => bytes,
-                    Err(error) => return body_refusal(out, &error),
-                };
-                if endpoint == Endpoint::PutSettings {
-                    self.put_settings(bytes, out).await
-                } else {
-                    self.put_password(bytes, out).await
-                }
-            }
+            Endpoint::PutSettings => self.put_settings(request.body, out).await,
+            Endpoint::PutPassword => self.put_password(request.body, out).await,
             Endpoint::Reboot => {
-                self.action.set(Some(Action::Reboot));
+                *action = Some(Action::Reboot);
                 out.text("{\"rebooting\":true}");
-                Reply::new(StatusCode::ACCEPTED)
+                Reply::new(Status::ACCEPTED)
             }
             Endpoint::FactoryReset => {
-                self.action.set(Some(Action::FactoryReset));
+                *action = Some(Action::FactoryReset);
                 out.text("{\"factory_reset\":true,\"rebooting\":true}");
-                Reply::new(StatusCode::ACCEPTED)
+                Reply::new(Status::ACCEPTED)
             }
             Endpoint::Locate => {
                 self.backend().locate(LOCATE_DURATION);
                 out.text("{\"locating_s\":");
                 out.number(LOCATE_DURATION.as_secs());
                 out.text("}");
-                Reply::new(StatusCode::OK)
+                Reply::new(Status::OK)
             }
-            Endpoint::Page | Endpoint::Status | Endpoint::GetSettings => Reply::new(StatusCode::INTERNAL_SERVER_ERROR),
+            Endpoint::Page | Endpoint::Status | Endpoint::GetSettings => Reply::new(Status::INTERNAL_SERVER_ERROR),
         }
     }
 
     /// Every change comes from an address `modbus.allow_write` admits (403),
     /// with the admin password once one is set (401).
-    async fn authorize(&self, parts: &RequestParts<'_>, out: &mut Out<'_>) -> Result<(), Reply> {
+    async fn authorize(&self, request: &Request<'_>, out: &mut Out<'_>) -> Result<(), Reply> {
         let backend = self.backend();
         let may_write = self.peer.is_some_and(|peer| backend.server().with_config(|c| c.access.may_write(peer)));
         if !may_write {
             let message = "this address may not change the device (modbus.allow_write)";
-            return Err(refusal(out, StatusCode::FORBIDDEN, "request", message));
+            return Err(refusal(out, Status::FORBIDDEN, "request", message));
         }
         if !backend.password_set() {
             return Ok(());
         }
         let mut buf = [0u8; MAX_CREDENTIALS_LEN];
-        let header = parts.headers().get("authorization").map(|value| value.as_raw());
+        let header = request.authorization;
         let verdict = match auth::credentials(header, &mut buf) {
             Credentials::Admin(password) => backend.verify_password(password).await,
             Credentials::Missing => false,
@@ -254,7 +211,7 @@ impl<B: Backend> Api<'_, '_, '_, B> {
             Timer::after(AUTH_FAILURE_DELAY).await;
         }
         let message = "the admin password is required (HTTP Basic, user admin)";
-        let reply = refusal(out, StatusCode::UNAUTHORIZED, "request", message);
+        let reply = refusal(out, Status::UNAUTHORIZED, "request", message);
         Err(Reply { header: Some(("WWW-Authenticate", REALM_HEADER)), ..reply })
     }
 
@@ -281,7 +238,7 @@ impl<B: Backend> Api<'_, '_, '_, B> {
         }
         if !report.is_empty() {
             report.finish();
-            return Reply::new(StatusCode::BAD_REQUEST);
+            return Reply::new(Status::BAD_REQUEST);
         }
         let reboot_required = if new == old {
             false
@@ -292,7 +249,7 @@ impl<B: Backend> Api<'_, '_, '_, B> {
             }
         };
         settings_document(out, &backend.settings(), backend.password_set(), Some(reboot_required));
-        Reply::new(StatusCode::OK)
+        Reply::new(Status::OK)
     }
 
     /// `PUT /api/password`: `{"password": "..."}`, 8-64 bytes.
@@ -315,14 +272,14 @@ impl<B: Backend> Api<'_, '_, '_, B> {
         }
         if !report.is_empty() {
             report.finish();
-            return Reply::new(StatusCode::BAD_REQUEST);
+            return Reply::new(Status::BAD_REQUEST);
         }
         let password = password.get(..len.unwrap_or(0)).unwrap_or_default();
         if let Err(refused) = self.backend().set_password(password).await {
             return refused_change(out, refused, "the password was not saved; nothing changed");
         }
         out.text("{\"admin\":{\"password_set\":true}}");
-        Reply::new(StatusCode::OK)
+        Reply::new(Status::OK)
     }
 
     /// `GET /api/status`.
@@ -780,30 +737,14 @@ fn malformed_refusal(out: &mut Out<'_>, malformed: Malformed) -> Reply {
     out.text("{\"errors\":{\"body\":\"not valid JSON (at byte ");
     out.number(malformed.at);
     out.text(")\"}}");
-    Reply::new(StatusCode::BAD_REQUEST)
-}
-
-/// The answer to a body that could not be read whole.
-fn body_refusal(out: &mut Out<'_>, error: &picoserve::request::ReadAllBodyError) -> Reply {
-    use picoserve::request::ReadAllBodyError;
-    match error {
-        ReadAllBodyError::BufferIsTooSmall { .. } => {
-            refusal(out, StatusCode::PAYLOAD_TOO_LARGE, "body", "over the size limit")
-        }
-        ReadAllBodyError::IO(embedded_io_async::ErrorKind::TimedOut) => {
-            refusal(out, StatusCode::REQUEST_TIMEOUT, "request", "not complete in time")
-        }
-        ReadAllBodyError::UnexpectedEof | ReadAllBodyError::IO(_) => {
-            refusal(out, StatusCode::BAD_REQUEST, "body", "shorter than its Content-Length")
-        }
-    }
+    Reply::new(Status::BAD_REQUEST)
 }
 
 /// The answer to a change the backend refused.
 fn refused_change(out: &mut Out<'_>, refused: Refusal, message: &str) -> Reply {
     let status = match refused {
-        Refusal::Storage => StatusCode::INTERNAL_SERVER_ERROR,
-        Refusal::Unsupported => StatusCode::NOT_IMPLEMENTED,
+        Refusal::Storage => Status::INTERNAL_SERVER_ERROR,
+        Refusal::Unsupported => Status::NOT_IMPLEMENTED,
     };
     refusal(out, status, "request", message)
 }

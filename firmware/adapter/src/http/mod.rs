@@ -12,17 +12,17 @@
 //!   and writer; [`listen`] accepts connections on an embassy-net stack
 //!   and serves them, one task per connection ([`MAX_HTTP_CONNECTIONS`]).
 //!
-//! HTTP/1.1 framing is picoserve's, over this module's limits: a head of
-//! at most [`MAX_HEAD_LEN`] bytes (431), a body of at most [`MAX_BODY_LEN`]
-//! (413), the whole request within [`REQUEST_TIMEOUT`] of the connection
-//! (408), the response within [`WRITE_TIMEOUT`]. One request per
+//! HTTP/1.1 framing is this module's own ([`request`], [`response`]): a
+//! head of at most [`MAX_HEAD_LEN`] bytes (431), a body of at most
+//! [`MAX_BODY_LEN`] (413), the whole request within [`REQUEST_TIMEOUT`] of
+//! the connection (408), the response within [`WRITE_TIMEOUT`]. One request per
 //! connection (`Connection: close`): a client holds a connection for
 //! a bounded time, so two slow ones cannot hold the API for long, and the
 //! Modbus sessions never wait for it (no blocking lock is held across an
 //! `.await`, and each request's work is bounded by its size).
 //!
-//! Nothing here panics on any input: the head is checked byte by byte
-//! before picoserve parses it ([`head`]), JSON is read by a checked reader
+//! Nothing here panics on any input: the request is read by length into
+//! one buffer and parsed by checked slicing ([`request`]), JSON by a checked reader
 //! ([`json`]), and a change is parsed into a copy, validated whole, and
 //! only then saved: a rejected change changes nothing.
 
@@ -30,29 +30,27 @@ mod api;
 mod auth;
 mod backend;
 mod control;
-pub mod head;
 pub mod json;
 mod listener;
 pub mod page;
-mod stream;
+pub mod request;
+mod response;
 
-use core::cell::Cell;
 use core::fmt;
 
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::mutex::Mutex;
-use embassy_time::Duration;
+use embassy_time::{Duration, Instant};
 use embedded_io_async::{ErrorKind, Read, Write};
-use picoserve::Router;
 
 pub use backend::{Backend, NetworkStatus, Refusal, RobotLinkStatus, RobotSource, StorageStatus};
 pub use control::{Controller, Platform};
-pub use head::Limit;
 pub use listener::{SOCKET_RX_LEN, SOCKET_TX_LEN, listen};
+pub use request::Limit;
+pub use response::Status;
 
 use self::api::Api;
 use self::json::Out;
-use self::stream::{Clock, Guarded, Paced, Stream, StreamError};
 use crate::server::SOCKET_POOL;
 
 /// The HTTP port (hal-sim: `--http-port`).
@@ -105,22 +103,11 @@ pub const MAX_PASSWORD_LEN: usize = 64;
 /// The one user name HTTP Basic authentication takes.
 pub const USER: &str = "admin";
 
+// The request's buffer holds the response's head once the request is done with.
+const _: () = assert!(REQUEST_BUFFER_LEN >= response::RESPONSE_HEAD_LEN);
+
 /// The `WWW-Authenticate` challenge of a 401.
 const REALM_HEADER: &str = "Basic realm=\"mbio\"";
-
-/// picoserve's own timeouts, a backstop behind this module's deadlines
-/// (which always end first).
-const PICOSERVE: picoserve::Config = {
-    let backstop = REQUEST_TIMEOUT.as_millis() + WRITE_TIMEOUT.as_millis();
-    let backstop = picoserve::time::Duration::from_millis(backstop);
-    picoserve::Config::new(picoserve::Timeouts {
-        start_read_request: backstop,
-        persistent_start_read_request: backstop,
-        read_request: backstop,
-        write: backstop,
-    })
-    .close_connection_after_response()
-};
 
 /// What an accepted request left to do once its response went out and
 /// its connection closed.
@@ -144,7 +131,8 @@ pub enum Error {
     Timeout,
     /// The request broke a limit (answered 431 or 413).
     Limit(Limit),
-    /// The request was not HTTP (answered 400 by picoserve).
+    /// The request was not HTTP/1.x, or the connection closed in its
+    /// middle (answered 400).
     BadRequest,
 }
 
@@ -221,70 +209,56 @@ impl Buffers {
 /// then does the [`Action`] returned, if any ([`Http::perform`]): a
 /// reboot only once its response has gone out.
 ///
-/// A request that breaks a limit or its deadline is answered here (431,
-/// 413, 408) and returns the [`Error`]; so does a transport error.
+/// A request that breaks a limit, its deadline or HTTP's grammar is
+/// answered here (431, 413, 408, 400) and returns the [`Error`]; so does a
+/// transport error (with no answer).
 pub async fn serve<B: Backend, R: Read, W: Write>(
     http: &Http<'_, B>,
     peer: Option<[u8; 4]>,
-    reader: R,
-    writer: W,
+    mut reader: R,
+    mut writer: W,
     buffers: &mut Buffers,
 ) -> Result<Option<Action>, Error> {
-    let Buffers { request, response } = buffers;
-    let api = Api { http, peer, response: Cell::new(Some(response)), action: Cell::new(None) };
-    let router = Router::from_service(&api);
-    let mut stream = Stream { reader: Guarded::new(reader), writer: Paced::new(writer) };
-    let served = picoserve::Server::custom(&router, Clock, &PICOSERVE, request).serve(&mut stream).await;
-    let error = match served {
-        Ok(_) => return Ok(api.action.take()),
-        Err(picoserve::Error::BadRequest) => return Err(Error::BadRequest),
-        Err(picoserve::Error::Read(StreamError::Limit(limit))) => Error::Limit(limit),
-        Err(picoserve::Error::Read(StreamError::Timeout) | picoserve::Error::ReadTimeout(_)) => Error::Timeout,
-        Err(picoserve::Error::Write(StreamError::Timeout) | picoserve::Error::WriteTimeout(_)) => {
-            return Err(Error::Timeout);
+    let Buffers { request: buffer, response: body } = buffers;
+    let mut out = Out::new(body);
+    let deadline = Instant::now() + REQUEST_TIMEOUT;
+    let (reply, result) = match request::read(&mut reader, buffer, deadline).await {
+        Ok(None) => return Ok(None),
+        Ok(Some(request)) => {
+            let api = Api { http, peer };
+            let (reply, action) = api.respond(&request, &mut out).await;
+            (reply, Ok(action))
         }
-        Err(picoserve::Error::Read(StreamError::Io(kind)) | picoserve::Error::Write(StreamError::Io(kind))) => {
-            return Err(Error::Io(kind));
-        }
-        Err(picoserve::Error::Write(StreamError::Limit(limit))) => return Err(Error::Limit(limit)),
+        Err(error @ Error::Io(_)) => return Err(error),
+        Err(error) => (refusal(&mut out, error), Err(error)),
     };
-    // The request broke a limit or its deadline before it was whole:
-    // answer for picoserve, which has written nothing.
-    let (status, what, limit, unit) = match error {
-        Error::Limit(Limit::HeadTooLarge) => ("431", "head", MAX_HEAD_LEN as u64, "bytes"),
-        Error::Limit(Limit::BodyTooLarge) => ("413", "body", MAX_BODY_LEN as u64, "bytes"),
-        _ => ("408", "", REQUEST_TIMEOUT.as_secs(), "s"),
-    };
-    let mut body = [0u8; 80];
-    let mut out = Out::new(&mut body);
-    out.text("{\"errors\":{\"request\":\"");
-    if what.is_empty() {
-        out.text("not complete within ");
-    } else {
-        out.text(what);
-        out.text(" over ");
-    }
-    out.number(limit);
-    out.text(" ");
-    out.text(unit);
-    out.text("\"}}");
-    refuse(&mut stream.writer, status, out.as_bytes()).await;
-    Err(error)
+    let response = reply.response(&mut out);
+    // The request is done with: its buffer holds the response's head.
+    response::write(&mut writer, &response, buffer).await?;
+    result
 }
 
-/// Writes a whole JSON response of `status` with `body` (best effort: the
-/// connection closes next whatever happens).
-async fn refuse<W: Write>(writer: &mut Paced<W>, status: &str, body: &[u8]) {
-    let mut head = [0u8; 112];
-    let mut out = Out::new(&mut head);
-    out.text("HTTP/1.1 ");
-    out.text(status);
-    out.text(" \r\nContent-Type: application/json\r\nContent-Length: ");
-    out.number(body.len());
-    out.text("\r\nConnection: close\r\n\r\n");
-    let _ = writer.write_all(out.as_bytes()).await;
-    let _ = writer.write_all(body).await;
-    let _ = writer.flush().await;
+/// The answer to a request that broke a limit, its deadline or HTTP's grammar.
+fn refusal(out: &mut Out<'_>, error: Error) -> api::Reply {
+    let (status, what, limit, unit) = match error {
+        Error::Limit(Limit::HeadTooLarge) => {
+            (Status::HEADER_FIELDS_TOO_LARGE, "head over ", MAX_HEAD_LEN as u64, " bytes")
+        }
+        Error::Limit(Limit::BodyTooLarge) => (Status::CONTENT_TOO_LARGE, "body over ", MAX_BODY_LEN as u64, " bytes"),
+        Error::Timeout => (Status::REQUEST_TIMEOUT, "not complete within ", REQUEST_TIMEOUT.as_secs(), " s"),
+        Error::BadRequest | Error::Io(_) => (Status::BAD_REQUEST, "", 0, ""),
+    };
+    out.clear();
+    out.text("{\"errors\":{\"request\":\"");
+    if what.is_empty() {
+        out.text("not an HTTP/1.1 request");
+    } else {
+        out.text(what);
+        out.number(limit);
+        out.text(unit);
+    }
+    out.text("\"}}");
+    api::Reply::new(status)
 }
 
 #[cfg(test)]

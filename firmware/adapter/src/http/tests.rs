@@ -510,7 +510,9 @@ fn garbage_gets_a_400() {
     {
         let (response, result) = exchange(http, &clock, Some(CLIENT), garbage);
         assert_eq!(result, Err(Error::BadRequest), "{garbage:?}");
-        assert_eq!(response.map(|r| r.status), Some(400), "picoserve's own 400");
+        let response = response.unwrap();
+        assert_eq!(response.status, 400, "{garbage:?}");
+        assert_eq!(response.json(), json!({"errors": {"request": "not an HTTP/1.1 request"}}));
     }
 }
 

@@ -1,0 +1,289 @@
+//! One HTTP/1.1 request, read and parsed here (no HTTP crate: the API
+//! needs a method, a path, three headers and a short body, and a general
+//! server cost the NUCLEO image 8 KiB of flash it does not have).
+//!
+//! What is taken, and what is refused:
+//! - The head (request line and header fields, up to and including the
+//!   empty line) is at most [`MAX_HEAD_LEN`] bytes: [`Limit::HeadTooLarge`].
+//!   Lines end at `\n`, with or without a `\r` before it.
+//! - The request line is `METHOD SP TARGET SP HTTP/1.x`; the path is the
+//!   target up to its query (`?`) or fragment (`#`).
+//! - A header field is `name: value`; the name is compared without case,
+//!   the value trimmed of spaces and tabs. A line without a `:`, a name
+//!   with white space in it or a folded line (starting with white space)
+//!   makes the request bad (400), as RFC 9112 asks.
+//! - The body is exactly `Content-Length` bytes (none without one). A
+//!   `Content-Length` over [`MAX_BODY_LEN`] is refused at once, before a
+//!   byte of the body is read: [`Limit::BodyTooLarge`]. One that is not
+//!   digits, two that differ, or a `Transfer-Encoding` (no chunked bodies
+//!   here) make the request bad.
+//! - Everything must have arrived by the deadline the caller gives.
+
+use core::str;
+
+use embassy_time::{Instant, with_deadline};
+use embedded_io_async::Read;
+
+use super::{Error, MAX_BODY_LEN, MAX_HEAD_LEN, REQUEST_BUFFER_LEN};
+
+/// A limit a request broke.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Limit {
+    /// The head is over [`MAX_HEAD_LEN`] bytes: 431.
+    HeadTooLarge,
+    /// A `Content-Length` over [`MAX_BODY_LEN`]: 413.
+    BodyTooLarge,
+}
+
+/// A request, borrowed from the buffer it was read into.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Request<'b> {
+    pub method: &'b str,
+    /// The target without its query or fragment, still percent-encoded.
+    pub path: &'b str,
+    /// The `Authorization` field's value.
+    pub authorization: Option<&'b [u8]>,
+    /// The `Accept-Encoding` field's value (the last one, if sent twice).
+    pub accept_encoding: Option<&'b [u8]>,
+    pub body: &'b [u8],
+}
+
+/// What a head says about the body that follows it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Head<'b> {
+    request: Request<'b>,
+    content_length: usize,
+}
+
+/// Reads one request from `reader` into `buffer` by `deadline`.
+///
+/// `Ok(None)`: the client closed the connection without sending a byte.
+/// A connection closed in the middle of a request is [`Error::BadRequest`].
+pub async fn read<'b, R: Read>(
+    reader: &mut R,
+    buffer: &'b mut [u8; REQUEST_BUFFER_LEN],
+    deadline: Instant,
+) -> Result<Option<Request<'b>>, Error> {
+    let mut filled = 0;
+    let mut scan = Scan::default();
+    let head_len = loop {
+        if let Some(end) = scan.run(buffer.get(..filled).unwrap_or_default()) {
+            break end;
+        }
+        let free = buffer.get_mut(filled..MAX_HEAD_LEN).unwrap_or_default();
+        if free.is_empty() {
+            return Err(Error::Limit(Limit::HeadTooLarge));
+        }
+        match fill(reader, free, deadline).await? {
+            0 if filled == 0 => return Ok(None),
+            0 => return Err(Error::BadRequest),
+            n => filled += n,
+        }
+    };
+    let (head_bytes, rest) = buffer.split_at_mut(head_len);
+    let head = parse(head_bytes)?;
+    // The body: what came with the head, then the rest of it.
+    let mut have = filled - head_len;
+    let body = rest.get_mut(..head.content_length).ok_or(Error::Limit(Limit::BodyTooLarge))?;
+    while have < body.len() {
+        match fill(reader, body.get_mut(have..).unwrap_or_default(), deadline).await? {
+            0 => return Err(Error::BadRequest),
+            n => have += n,
+        }
+    }
+    Ok(Some(Request { body, ..head.request }))
+}
+
+/// One read by `deadline`.
+async fn fill<R: Read>(reader: &mut R, into: &mut [u8], deadline: Instant) -> Result<usize, Error> {
+    match with_deadline(deadline, reader.read(into)).await {
+        Err(_) => Err(Error::Timeout),
+        Ok(Err(e)) => Err(Error::Io(embedded_io_async::Error::kind(&e))),
+        Ok(Ok(n)) => Ok(n.min(into.len())),
+    }
+}
+
+/// Where the search for the head's end stands: bytes already looked at,
+/// and where the current line starts.
+#[derive(Clone, Copy, Debug, Default)]
+struct Scan {
+    looked: usize,
+    line: usize,
+}
+
+impl Scan {
+    /// The head's length, once `bytes` hold its empty last line.
+    fn run(&mut self, bytes: &[u8]) -> Option<usize> {
+        while let Some(&byte) = bytes.get(self.looked) {
+            self.looked += 1;
+            if byte != b'\n' {
+                continue;
+            }
+            let line = bytes.get(self.line..self.looked - 1).unwrap_or_default();
+            // The first line is the request line, even when empty.
+            if self.line > 0 && trim_cr(line).is_empty() {
+                return Some(self.looked);
+            }
+            self.line = self.looked;
+        }
+        None
+    }
+}
+
+fn trim_cr(line: &[u8]) -> &[u8] {
+    line.strip_suffix(b"\r").unwrap_or(line)
+}
+
+/// Parses a whole head (ending with its empty line).
+fn parse(head: &[u8]) -> Result<Head<'_>, Error> {
+    let mut lines = head.split(|&b| b == b'\n').map(trim_cr);
+    let (method, path) = request_line(lines.next().unwrap_or_default()).ok_or(Error::BadRequest)?;
+    let mut request = Request { method, path, authorization: None, accept_encoding: None, body: &[] };
+    let mut content_length = None;
+    for line in lines.take_while(|line| !line.is_empty()) {
+        let (name, value) = field(line).ok_or(Error::BadRequest)?;
+        if name.eq_ignore_ascii_case(b"content-length") {
+            let length = decimal(value).ok_or(Error::BadRequest)?;
+            if content_length.is_some_and(|before| before != length) {
+                return Err(Error::BadRequest);
+            }
+            content_length = Some(length);
+        } else if name.eq_ignore_ascii_case(b"transfer-encoding") {
+            return Err(Error::BadRequest);
+        } else if name.eq_ignore_ascii_case(b"authorization") {
+            request.authorization = Some(value);
+        } else if name.eq_ignore_ascii_case(b"accept-encoding") {
+            request.accept_encoding = Some(value);
+        }
+    }
+    let content_length = content_length.unwrap_or(0);
+    if content_length > MAX_BODY_LEN as u64 {
+        return Err(Error::Limit(Limit::BodyTooLarge));
+    }
+    Ok(Head { request, content_length: content_length as usize })
+}
+
+/// `METHOD SP TARGET SP HTTP/1.x`: the method and the path.
+fn request_line(line: &[u8]) -> Option<(&str, &str)> {
+    let mut parts = line.split(|&b| b == b' ');
+    let (method, target, version) = (parts.next()?, parts.next()?, parts.next()?);
+    let tokens = |bytes: &[u8]| !bytes.is_empty() && bytes.iter().all(|&b| b.is_ascii_graphic());
+    let known = matches!(version, b"HTTP/1.1" | b"HTTP/1.0");
+    if parts.next().is_some() || !tokens(method) || !tokens(target) || !known {
+        return None;
+    }
+    let path = target.split(|&b| b == b'?' || b == b'#').next().unwrap_or_default();
+    Some((str::from_utf8(method).ok()?, str::from_utf8(path).ok()?))
+}
+
+/// `name: value`, the value trimmed of spaces and tabs.
+fn field(line: &[u8]) -> Option<(&[u8], &[u8])> {
+    let colon = line.iter().position(|&b| b == b':')?;
+    let (name, value) = line.split_at(colon);
+    if name.is_empty() || name.iter().any(|b| b.is_ascii_whitespace()) {
+        return None;
+    }
+    let value = value.get(1..).unwrap_or_default();
+    let blank = |b: &u8| *b == b' ' || *b == b'\t';
+    let start = value.iter().position(|b| !blank(b)).unwrap_or(value.len());
+    let end = value.iter().rposition(|b| !blank(b)).map_or(start, |last| last + 1);
+    Some((name, value.get(start..end).unwrap_or_default()))
+}
+
+/// Decimal digits (at least one); saturates, since only "over the limit" matters.
+fn decimal(digits: &[u8]) -> Option<u64> {
+    if digits.is_empty() {
+        return None;
+    }
+    digits.iter().try_fold(0u64, |value, &digit| {
+        digit.is_ascii_digit().then(|| value.saturating_mul(10).saturating_add(u64::from(digit - b'0')))
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn head(text: &str) -> Result<Head<'_>, Error> {
+        let bytes = text.as_bytes();
+        let len = Scan::default().run(bytes).expect("a whole head");
+        assert_eq!(len, bytes.len(), "the head ends at its empty line");
+        parse(bytes)
+    }
+
+    #[test]
+    fn a_head_ends_at_its_first_empty_line_after_the_request_line() {
+        for (text, end) in [
+            ("GET / HTTP/1.1\r\n\r\nbody", Some(18)),
+            ("GET / HTTP/1.1\n\nbody", Some(16)),
+            ("GET / HTTP/1.1\r\nA: b\r\n\r\n", Some(24)),
+            ("\r\n\r\n", Some(4)),
+            ("GET / HTTP/1.1\r\nA: b\r\n", None),
+            ("GET / HTTP/1.1\r\n\r", None),
+        ] {
+            assert_eq!(Scan::default().run(text.as_bytes()), end, "{text:?}");
+        }
+        // Fed a byte at a time: the same end.
+        let text = b"PUT /api/settings HTTP/1.1\r\nContent-Length: 2\r\n\r\n{}";
+        let mut scan = Scan::default();
+        let ends: Vec<_> = (0..=text.len()).filter_map(|n| scan.run(&text[..n])).collect();
+        assert_eq!(ends.first(), Some(&(text.len() - 2)));
+    }
+
+    #[test]
+    fn the_request_line_gives_the_method_and_the_path() {
+        let parsed = head("GET /api/status?x=1#y HTTP/1.0\r\n\r\n").unwrap().request;
+        assert_eq!((parsed.method, parsed.path), ("GET", "/api/status"));
+        for bad in [
+            "\r\n\r\n",
+            "GET\r\n\r\n",
+            "GET /\r\n\r\n",
+            "GET / HTTP/2\r\n\r\n",
+            "GET  / HTTP/1.1\r\n\r\n",
+            "GET / HTTP/1.1 x\r\n\r\n",
+            "G\u{e9}T / HTTP/1.1\r\n\r\n",
+        ] {
+            assert_eq!(head(bad), Err(Error::BadRequest), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn header_fields_are_read_without_case_and_trimmed() {
+        let text =
+            "PUT /x HTTP/1.1\r\nauthorization:  Basic abc \t\r\nACCEPT-ENCODING: gzip\r\nContent-length: 12\r\n\r\n";
+        let parsed = head(text).unwrap();
+        assert_eq!(parsed.request.authorization, Some(&b"Basic abc"[..]));
+        assert_eq!(parsed.request.accept_encoding, Some(&b"gzip"[..]));
+        assert_eq!(parsed.content_length, 12);
+        assert_eq!(head("GET / HTTP/1.1\r\nX-Empty:\r\n\r\n").map(|h| h.content_length), Ok(0));
+        for bad in [
+            "GET / HTTP/1.1\r\nno colon\r\n\r\n",
+            "GET / HTTP/1.1\r\n: no name\r\n\r\n",
+            "GET / HTTP/1.1\r\nName : space before the colon\r\n\r\n",
+            "GET / HTTP/1.1\r\nA: b\r\n folded\r\n\r\n",
+            "PUT / HTTP/1.1\r\nTransfer-Encoding: chunked\r\n\r\n",
+        ] {
+            assert_eq!(head(bad), Err(Error::BadRequest), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn content_length_is_digits_within_the_body_limit() {
+        let length =
+            |value: &str| head(&format!("PUT / HTTP/1.1\r\nContent-Length: {value}\r\n\r\n")).map(|h| h.content_length);
+        assert_eq!(length("0"), Ok(0));
+        assert_eq!(length(&MAX_BODY_LEN.to_string()), Ok(MAX_BODY_LEN));
+        let over = Err(Error::Limit(Limit::BodyTooLarge));
+        assert_eq!(length(&(MAX_BODY_LEN + 1).to_string()), over);
+        assert_eq!(length("18446744073709551616"), over);
+        assert_eq!(length(&"9".repeat(100)), over);
+        for bad in ["", "+1", "-1", "1 2", "0x10", "1.0"] {
+            assert_eq!(length(bad), Err(Error::BadRequest), "{bad:?}");
+        }
+        let twice = "PUT / HTTP/1.1\r\nContent-Length: 2\r\nContent-Length: 2\r\n\r\n";
+        assert_eq!(head(twice).map(|h| h.content_length), Ok(2));
+        let differ = "PUT / HTTP/1.1\r\nContent-Length: 2\r\nContent-Length: 3\r\n\r\n";
+        assert_eq!(head(differ), Err(Error::BadRequest));
+    }
+}
