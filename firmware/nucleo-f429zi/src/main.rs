@@ -1,7 +1,7 @@
 //! The NUCLEO-F429ZI image: Modbus TCP on port 502 over the board's Ethernet,
 //! and with the `http` feature (on by default) the settings saved in flash
-//! and the HTTP API on port 80 ([`http`]); with `mdns` (off by default: over
-//! the budget today) the mDNS responder.
+//! and the HTTP API on port 80 ([`http`]); with `mdns` (on by default) the
+//! mDNS responder.
 //!
 //! Build and flash: `cargo nucleo` (see `docs/nucleo-f429zi.md`). The
 //! factory settings are the defaults of `adapter::settings`, changed by the
