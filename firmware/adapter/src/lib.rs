@@ -34,6 +34,7 @@ pub mod net;
 pub mod server;
 pub mod settings;
 pub mod storage;
+pub mod text;
 
 /// The wire codec this core speaks (its own crate: no map, no async).
 pub use modbus;

@@ -14,6 +14,7 @@ use crate::io::AnalogType;
 use crate::map::Image;
 use crate::map::table::reg;
 use crate::settings::{Field, Kind, Settings};
+use crate::text;
 
 const JSON: &str = "application/json";
 
@@ -298,28 +299,33 @@ impl<B: Backend> Api<'_, '_, B> {
         let network = backend.network();
 
         out.text("{\"device\":{\"name\":");
-        out.string_with(|w| write!(w, "{}", settings.device.name.or_default(mac)));
+        out.string(settings.device.name.or_default(mac).as_str());
         out.text(",\"model\":");
         out.string(backend.model());
         let crate::io::Version { major, minor, patch } = crate::VERSION;
         out.text(",\"firmware\":");
-        out.string_with(|w| write!(w, "{major}.{minor}.{patch}"));
+        out.text("\"");
+        out.number(major);
+        out.text(".");
+        out.number(minor);
+        out.text(".");
+        out.number(patch);
+        out.text("\"");
         out.text(",\"uptime_s\":");
         out.number(now.as_secs());
         out.text(",\"cpu_load_percent\":");
         optional(out, backend.cpu_load_percent(), |out, load| out.number(load));
         out.text(",\"mac\":");
-        let [a, b, c, d, e, f] = mac;
-        out.string_with(|w| write!(w, "{a:02x}:{b:02x}:{c:02x}:{d:02x}:{e:02x}:{f:02x}"));
+        out.string_with(|w| text::write_mac(w, mac));
         out.text(",\"reset_reason\":");
         optional(out, backend.reset_reason(), |out, reason| out.string(reason));
 
         out.text("},\"network\":{\"mode\":");
-        out.string_with(|w| write!(w, "{}", network.mode));
+        out.string(network.mode.as_str());
         out.text(",\"address\":");
-        optional(out, network.address, |out, address| out.string_with(|w| write!(w, "{address}")));
+        optional(out, network.address, |out, address| out.string_with(|w| address.write_to(w)));
         out.text(",\"gateway\":");
-        optional(out, network.gateway, |out, gateway| out.string_with(|w| write!(w, "{gateway}")));
+        optional(out, network.gateway, |out, gateway| out.string_with(|w| gateway.write_to(w)));
         out.text(",\"link\":");
         out.boolean(network.link);
 

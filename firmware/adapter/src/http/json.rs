@@ -16,6 +16,8 @@
 
 use core::fmt;
 
+use crate::text::{self, Unsigned};
+
 /// Where a body stops being JSON (a byte offset).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -425,8 +427,8 @@ impl<'b> Out<'b> {
     }
 
     /// Appends a number.
-    pub fn number(&mut self, value: impl fmt::Display) {
-        let _ = fmt::Write::write_fmt(self, format_args!("{value}"));
+    pub fn number(&mut self, value: impl Unsigned) {
+        self.text(text::decimal(value, &mut [0; text::MAX_DIGITS]));
     }
 
     /// Appends a JSON string of `bytes` (UTF-8), quoted and escaped.

@@ -36,10 +36,18 @@ impl Network {
     }
 }
 
+impl Network {
+    /// Writes `a.b.c.d/n`.
+    pub fn write_to(&self, out: &mut dyn fmt::Write) -> fmt::Result {
+        crate::text::write_ipv4(out, self.address)?;
+        out.write_str("/")?;
+        crate::text::write_decimal(out, self.prefix_len)
+    }
+}
+
 impl fmt::Display for Network {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let [a, b, c, d] = self.address;
-        write!(f, "{a}.{b}.{c}.{d}/{}", self.prefix_len)
+        self.write_to(f)
     }
 }
 

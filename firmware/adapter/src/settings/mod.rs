@@ -20,10 +20,11 @@ pub use self::parse::{Cidr, Invalid, Ipv4};
 pub use self::values::{MAX_NAME_LEN, Name, NetMode, RobotLink};
 use crate::map::WritePolicy;
 use crate::map::table::{ANALOG_MAX_MICROAMPS, TOOL_PINS};
-use crate::server::access::{Access, AllowList};
+use crate::server::access::{Access, AllowList, Network};
 use crate::server::handler::Policy;
 use crate::server::{self, MAX_CONNECTIONS};
 use crate::server::{SafeState, Watchdog};
+use crate::text;
 use embassy_time::Duration;
 
 /// The `device` group.
@@ -223,24 +224,48 @@ trait Show {
     fn show(&self, out: &mut dyn fmt::Write) -> fmt::Result;
 }
 
-macro_rules! show_display {
+macro_rules! show_number {
     ($($ty:ty),*) => {$(
         impl Show for $ty {
             fn show(&self, out: &mut dyn fmt::Write) -> fmt::Result {
-                write!(out, "{self}")
+                text::write_decimal(out, *self)
             }
         }
     )*};
 }
 
-show_display!(u8, u16, u32, Name, NetMode);
+show_number!(u8, u16, u32);
+
+impl Show for Name {
+    fn show(&self, out: &mut dyn fmt::Write) -> fmt::Result {
+        out.write_str(self.as_str())
+    }
+}
+
+impl Show for NetMode {
+    fn show(&self, out: &mut dyn fmt::Write) -> fmt::Result {
+        out.write_str(self.as_str())
+    }
+}
+
+macro_rules! show_written {
+    ($($ty:ty),*) => {$(
+        impl Show for $ty {
+            fn show(&self, out: &mut dyn fmt::Write) -> fmt::Result {
+                self.write_to(out)
+            }
+        }
+    )*};
+}
+
+show_written!(Cidr, Ipv4, RobotLink, Network);
 
 macro_rules! show_optional {
     ($($ty:ty => $none:literal),*) => {$(
         impl Show for Option<$ty> {
             fn show(&self, out: &mut dyn fmt::Write) -> fmt::Result {
                 match self {
-                    Some(value) => write!(out, "{value}"),
+                    Some(value) => value.show(out),
                     None => out.write_str($none),
                 }
             }
@@ -254,7 +279,10 @@ impl Show for Option<AllowList> {
     fn show(&self, out: &mut dyn fmt::Write) -> fmt::Result {
         let Some(list) = self else { return out.write_str("any") };
         for (i, network) in list.networks().iter().enumerate() {
-            write!(out, "{}{network}", if i == 0 { "" } else { "," })?;
+            if i > 0 {
+                out.write_str(",")?;
+            }
+            network.show(out)?;
         }
         Ok(())
     }

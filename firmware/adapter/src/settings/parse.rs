@@ -9,6 +9,7 @@
 use core::fmt;
 
 use crate::server::access::{AllowList, Network};
+use crate::text;
 
 /// A text that is not a valid value of its type.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -175,10 +176,16 @@ impl Ipv4 {
     }
 }
 
+impl Ipv4 {
+    /// Writes the address as [`Self::parse`] takes it.
+    pub fn write_to(&self, out: &mut dyn fmt::Write) -> fmt::Result {
+        text::write_ipv4(out, self.0)
+    }
+}
+
 impl fmt::Display for Ipv4 {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let [a, b, c, d] = self.0;
-        write!(f, "{a}.{b}.{c}.{d}")
+        self.write_to(f)
     }
 }
 
@@ -222,9 +229,18 @@ impl Cidr {
     }
 }
 
+impl Cidr {
+    /// Writes `a.b.c.d/n`.
+    pub fn write_to(&self, out: &mut dyn fmt::Write) -> fmt::Result {
+        text::write_ipv4(out, self.address)?;
+        out.write_str("/")?;
+        text::write_decimal(out, self.prefix_len)
+    }
+}
+
 impl fmt::Display for Cidr {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}/{}", Ipv4(self.address), self.prefix_len)
+        self.write_to(f)
     }
 }
 

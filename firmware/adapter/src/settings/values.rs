@@ -4,7 +4,8 @@
 
 use core::fmt;
 
-use super::parse::{Invalid, Ipv4, ipv4, is, is_none, number_suffix};
+use super::parse::{Invalid, ipv4, is, is_none, number_suffix};
+use crate::text;
 
 /// Longest device name (docs/settings.md; also a DNS label's limit).
 pub const MAX_NAME_LEN: usize = 32;
@@ -53,7 +54,7 @@ impl Name {
         let tail = [d, e, f];
         let mut rest = tail.as_slice();
         while let [byte, more @ ..] = rest {
-            name = name.push(hex_digit(*byte >> 4)).push(hex_digit(*byte & 0xf));
+            name = name.push(text::hex_digit(*byte >> 4)).push(text::hex_digit(*byte & 0xf));
             rest = more;
         }
         name
@@ -110,11 +111,6 @@ impl defmt::Format for Name {
     }
 }
 
-/// The lower-case hex digit of `nibble` (0..=15).
-const fn hex_digit(nibble: u8) -> u8 {
-    if nibble < 10 { b'0' + nibble } else { b'a' + (nibble - 10) }
-}
-
 /// How the device gets its address.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -138,12 +134,19 @@ impl NetMode {
     }
 }
 
-impl fmt::Display for NetMode {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
+impl NetMode {
+    /// `dhcp` or `static`.
+    pub const fn as_str(self) -> &'static str {
+        match self {
             Self::Dhcp => "dhcp",
             Self::Static => "static",
-        })
+        }
+    }
+}
+
+impl fmt::Display for NetMode {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
     }
 }
 
@@ -173,9 +176,20 @@ impl RobotLink {
     }
 }
 
+impl RobotLink {
+    /// Writes `a.b.c.d:port/unit`.
+    pub fn write_to(&self, out: &mut dyn fmt::Write) -> fmt::Result {
+        text::write_ipv4(out, self.address)?;
+        out.write_str(":")?;
+        text::write_decimal(out, self.port)?;
+        out.write_str("/")?;
+        text::write_decimal(out, self.unit)
+    }
+}
+
 impl fmt::Display for RobotLink {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}:{}/{}", Ipv4(self.address), self.port, self.unit)
+        self.write_to(f)
     }
 }
 
