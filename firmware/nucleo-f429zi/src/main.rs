@@ -76,8 +76,11 @@ async fn start(spawner: Spawner) {
     // The settings in force: the saved ones (the factory settings when none
     // are saved or they cannot be taken whole), or without the store the
     // factory settings.
+    // Loaded before any other task runs, by blocking: a task's future keeps
+    // every local live across its `.await`s in static RAM for good (the
+    // board's peripherals, the settings: 2 KiB), and nothing waits meanwhile.
     #[cfg(feature = "http")]
-    let (store, loaded) = http::load(board.settings, board.factory_reset).await;
+    let (store, loaded) = embassy_futures::block_on(http::load(board.settings, board.factory_reset));
     #[cfg(feature = "http")]
     let settings: &'static Settings = {
         static IN_FORCE: StaticCell<Settings> = StaticCell::new();
