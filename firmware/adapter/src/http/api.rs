@@ -7,7 +7,7 @@ use super::auth::{self, Credentials, MAX_CREDENTIALS_LEN};
 use super::backend::{Backend, Refusal, RobotSource};
 use super::json::{Malformed, Out, Reader, Str, Value};
 use super::page;
-use super::request::Request;
+use super::request::{Incoming, Request};
 use super::response::{Response, Status};
 use super::{AUTH_FAILURE_DELAY, Action, Http, LOCATE_DURATION, MAX_PASSWORD_LEN, MIN_PASSWORD_LEN, REALM_HEADER};
 use crate::io::AnalogType;
@@ -39,6 +39,9 @@ pub(super) enum Endpoint {
     Reboot,
     FactoryReset,
     Locate,
+    /// `POST /api/firmware` (feature `update`).
+    #[cfg(feature = "update")]
+    Firmware,
 }
 
 /// Why a request has no endpoint.
@@ -65,7 +68,11 @@ pub(super) fn route(method: &str, path: &str) -> Result<Endpoint, Miss> {
         ("/api/factory-reset", "POST") => ("", Some(Endpoint::FactoryReset)),
         ("/api/locate", "POST") => ("", Some(Endpoint::Locate)),
         ("/api/reboot" | "/api/factory-reset" | "/api/locate", _) => ("POST", None),
-        // /api/events and /api/firmware come later: 404 until then.
+        #[cfg(feature = "update")]
+        ("/api/firmware", "POST") => ("", Some(Endpoint::Firmware)),
+        #[cfg(feature = "update")]
+        ("/api/firmware", _) => ("POST", None),
+        // /api/events comes later (and /api/firmware without updates): 404.
         _ => return Err(Miss::NotFound),
     };
     endpoint.ok_or(Miss::MethodNotAllowed(allowed))
@@ -121,6 +128,72 @@ pub(super) struct Api<'h, 'b, B: Backend> {
 impl<B: Backend> Api<'_, '_, B> {
     fn backend(&self) -> &B {
         self.http.backend
+    }
+
+    /// Takes the rest of `incoming` from `reader` by `deadline` and answers
+    /// it into `out`: the reply, and what is left to do once it has gone
+    /// out. An update file is streamed; any other body is read whole first.
+    pub(super) async fn take<R: embedded_io_async::Read>(
+        &self,
+        incoming: Incoming<'_>,
+        reader: &mut R,
+        deadline: Instant,
+        out: &mut Out<'_>,
+    ) -> Result<(Reply, Option<Action>), super::Error> {
+        #[cfg(feature = "update")]
+        if route(incoming.request.method, incoming.request.path) == Ok(Endpoint::Firmware) {
+            return self.upload(incoming, reader, out).await;
+        }
+        let request = incoming.body(reader, deadline).await?;
+        Ok(self.respond(&request, out).await)
+    }
+
+    /// `POST /api/firmware`: the body streamed to the backend, which checks
+    /// it whole before it arms anything; then a reboot into it.
+    #[cfg(feature = "update")]
+    async fn upload<R: embedded_io_async::Read>(
+        &self,
+        mut incoming: Incoming<'_>,
+        reader: &mut R,
+        out: &mut Out<'_>,
+    ) -> Result<(Reply, Option<Action>), super::Error> {
+        use super::backend::FirmwareRefusal;
+        let capacity = self.backend().firmware_capacity();
+        if capacity == 0 {
+            return Ok((refusal(out, Status::NOT_IMPLEMENTED, "firmware", "this device takes no updates"), None));
+        }
+        if incoming.content_length > capacity as u64 {
+            out.text("{\"errors\":{\"firmware\":\"over ");
+            out.number(capacity);
+            out.text(" bytes\"}}");
+            return Ok((Reply::new(Status::CONTENT_TOO_LARGE), None));
+        }
+        if let Err(reply) = self.authorize(&incoming.request, out).await {
+            return Ok((reply, None));
+        }
+        let _change = self.http.changes.lock().await;
+        let mut body = incoming.stream(reader, Instant::now() + super::UPLOAD_TIMEOUT);
+        let reply = match self.backend().receive_firmware(&mut body).await {
+            Ok(crate::io::Version { major, minor, patch }) => {
+                out.text("{\"firmware\":{\"version\":\"");
+                out.number(major);
+                out.text(".");
+                out.number(minor);
+                out.text(".");
+                out.number(patch);
+                out.text("\",\"rebooting\":true}}");
+                return Ok((Reply::new(Status::ACCEPTED), Some(Action::Reboot)));
+            }
+            Err(FirmwareRefusal::Body(error)) => return Err(error),
+            Err(FirmwareRefusal::Invalid(message)) => refusal(out, Status::BAD_REQUEST, "firmware", message),
+            Err(FirmwareRefusal::Storage) => {
+                refusal(out, Status::INTERNAL_SERVER_ERROR, "firmware", "the update partition failed; nothing changed")
+            }
+            Err(FirmwareRefusal::Unsupported) => {
+                refusal(out, Status::NOT_IMPLEMENTED, "firmware", "this device takes no updates")
+            }
+        };
+        Ok((reply, None))
     }
 
     /// Answers `request` into `out`: the reply, and what is left to do
@@ -180,7 +253,11 @@ impl<B: Backend> Api<'_, '_, B> {
                 out.text("}");
                 Reply::new(Status::OK)
             }
+            // Answered above.
             Endpoint::Page | Endpoint::Status | Endpoint::GetSettings => Reply::new(Status::INTERNAL_SERVER_ERROR),
+            // Streamed before `respond` (`take`).
+            #[cfg(feature = "update")]
+            Endpoint::Firmware => Reply::new(Status::INTERNAL_SERVER_ERROR),
         }
     }
 

@@ -67,6 +67,23 @@ pub struct RobotLinkStatus {
 }
 
 /// Why the backend did not do what it was asked; nothing changed.
+/// Why an update file was not taken (`POST /api/firmware`); the running
+/// image stays.
+#[cfg(feature = "update")]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum FirmwareRefusal {
+    /// The file is not one this device takes: not an update file, another
+    /// board's, a bad signature, cut off (400, with the message).
+    Invalid(&'static str),
+    /// The body could not be read whole (answered as any such request).
+    Body(super::Error),
+    /// The update partition failed (500).
+    Storage,
+    /// This program takes no updates (501).
+    Unsupported,
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Refusal {
@@ -165,5 +182,27 @@ pub trait Backend {
     /// The settings store's health (the store is not built yet). Hook: `None`.
     fn storage(&self) -> Option<StorageStatus> {
         None
+    }
+
+    /// The largest update file the device takes (header and payload);
+    /// 0: none. Hook: 0.
+    #[cfg(feature = "update")]
+    fn firmware_capacity(&self) -> usize {
+        0
+    }
+
+    /// Takes an update file from `body` (at most the capacity, checked by
+    /// the API), checks it whole, signature included, and arms the swap to
+    /// it at the next reset. Returns the new image's version; the API then
+    /// reboots the device once the response has gone out. On `Err` nothing
+    /// is armed and the running image stays. Runs with the change lock held
+    /// (one change at a time). Hook: [`FirmwareRefusal::Unsupported`].
+    #[cfg(feature = "update")]
+    async fn receive_firmware<R: embedded_io_async::Read>(
+        &self,
+        body: &mut super::request::Stream<'_, R>,
+    ) -> Result<crate::io::Version, FirmwareRefusal> {
+        let _ = body;
+        Err(FirmwareRefusal::Unsupported)
     }
 }

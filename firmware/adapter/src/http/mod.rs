@@ -43,6 +43,8 @@ use embassy_sync::mutex::Mutex;
 use embassy_time::{Duration, Instant};
 use embedded_io_async::{ErrorKind, Read, Write};
 
+#[cfg(feature = "update")]
+pub use backend::FirmwareRefusal;
 pub use backend::{Backend, NetworkStatus, Refusal, RobotLinkStatus, RobotSource, StorageStatus};
 pub use control::{Controller, Platform};
 pub use listener::{SOCKET_RX_LEN, SOCKET_TX_LEN, listen};
@@ -92,6 +94,11 @@ pub const WRITE_TIMEOUT: Duration = Duration::from_secs(5);
 /// A request with wrong credentials is answered (401) after this long, so
 /// a password is guessed at no more than one try per connection per second.
 pub const AUTH_FAILURE_DELAY: Duration = Duration::from_secs(1);
+
+/// The whole of an update file's body (`POST /api/firmware`) must have
+/// arrived this long after its head: a few hundred KiB, at a slow client's pace.
+#[cfg(feature = "update")]
+pub const UPLOAD_TIMEOUT: Duration = Duration::from_secs(120);
 
 /// How long `POST /api/locate` blinks the status LED.
 pub const LOCATE_DURATION: Duration = Duration::from_secs(10);
@@ -222,13 +229,13 @@ pub async fn serve<B: Backend, R: Read, W: Write>(
     let Buffers { request: buffer, response: body } = buffers;
     let mut out = Out::new(body);
     let deadline = Instant::now() + REQUEST_TIMEOUT;
-    let (reply, result) = match request::read(&mut reader, buffer, deadline).await {
+    let answered = match request::read_head(&mut reader, buffer, deadline).await {
         Ok(None) => return Ok(None),
-        Ok(Some(request)) => {
-            let api = Api { http, peer };
-            let (reply, action) = api.respond(&request, &mut out).await;
-            (reply, Ok(action))
-        }
+        Ok(Some(incoming)) => Api { http, peer }.take(incoming, &mut reader, deadline, &mut out).await,
+        Err(error) => Err(error),
+    };
+    let (reply, result) = match answered {
+        Ok((reply, action)) => (reply, Ok(action)),
         Err(error @ Error::Io(_)) => return Err(error),
         Err(error) => (refusal(&mut out, error), Err(error)),
     };

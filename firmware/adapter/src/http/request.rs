@@ -53,10 +53,26 @@ pub struct Request<'b> {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct Head<'b> {
     request: Request<'b>,
-    content_length: usize,
+    /// Saturated: only "over the limit" matters past [`MAX_BODY_LEN`].
+    content_length: u64,
 }
 
-/// Reads one request from `reader` into `buffer` by `deadline`.
+/// A request whose head has been read: the body is still to come, read
+/// whole ([`Self::body`]) or streamed ([`Self::stream`]).
+#[derive(Debug)]
+pub struct Incoming<'b> {
+    /// The request, with no body yet.
+    pub request: Request<'b>,
+    /// The body's length, as `Content-Length` gave it (saturated).
+    pub content_length: u64,
+    /// The buffer after the head: the body's room.
+    rest: &'b mut [u8],
+    /// Bytes of the body already read with the head (fewer than [`MAX_BODY_LEN`]).
+    have: usize,
+}
+
+/// Reads one request from `reader` into `buffer` by `deadline`: its head,
+/// then its body of at most [`MAX_BODY_LEN`] bytes.
 ///
 /// `Ok(None)`: the client closed the connection without sending a byte.
 /// A connection closed in the middle of a request is [`Error::BadRequest`].
@@ -65,6 +81,20 @@ pub async fn read<'b, R: Read>(
     buffer: &'b mut [u8; REQUEST_BUFFER_LEN],
     deadline: Instant,
 ) -> Result<Option<Request<'b>>, Error> {
+    match read_head(reader, buffer, deadline).await? {
+        Some(incoming) => incoming.body(reader, deadline).await.map(Some),
+        None => Ok(None),
+    }
+}
+
+/// Reads a request's head from `reader` into `buffer` by `deadline`.
+///
+/// `Ok(None)`: the client closed the connection without sending a byte.
+pub async fn read_head<'b, R: Read>(
+    reader: &mut R,
+    buffer: &'b mut [u8; REQUEST_BUFFER_LEN],
+    deadline: Instant,
+) -> Result<Option<Incoming<'b>>, Error> {
     let mut filled = 0;
     let mut scan = Scan::default();
     let head_len = loop {
@@ -82,17 +112,79 @@ pub async fn read<'b, R: Read>(
         }
     };
     let (head_bytes, rest) = buffer.split_at_mut(head_len);
-    let head = parse(head_bytes)?;
-    // The body: what came with the head, then the rest of it.
-    let mut have = filled - head_len;
-    let body = rest.get_mut(..head.content_length).ok_or(Error::Limit(Limit::BodyTooLarge))?;
-    while have < body.len() {
-        match fill(reader, body.get_mut(have..).unwrap_or_default(), deadline).await? {
-            0 => return Err(Error::BadRequest),
-            n => have += n,
+    let Head { request, content_length } = parse(head_bytes)?;
+    Ok(Some(Incoming { request, content_length, rest, have: filled - head_len }))
+}
+
+impl<'b> Incoming<'b> {
+    /// The request with its whole body: at most [`MAX_BODY_LEN`] bytes
+    /// ([`Limit::BodyTooLarge`] otherwise, before a byte more is read).
+    pub async fn body<R: Read>(self, reader: &mut R, deadline: Instant) -> Result<Request<'b>, Error> {
+        let len = usize::try_from(self.content_length).unwrap_or(usize::MAX);
+        if len > MAX_BODY_LEN {
+            return Err(Error::Limit(Limit::BodyTooLarge));
         }
+        let body = self.rest.get_mut(..len).ok_or(Error::Limit(Limit::BodyTooLarge))?;
+        let mut have = self.have;
+        while have < body.len() {
+            match fill(reader, body.get_mut(have..).unwrap_or_default(), deadline).await? {
+                0 => return Err(Error::BadRequest),
+                n => have += n,
+            }
+        }
+        Ok(Request { body, ..self.request })
     }
-    Ok(Some(Request { body, ..head.request }))
+
+    /// The body as it comes, in chunks of [`CHUNK_LEN`] bytes (the last one
+    /// shorter), whatever its length: for a body too large to hold.
+    pub fn stream<'i, R: Read>(&'i mut self, reader: &'i mut R, deadline: Instant) -> Stream<'i, R> {
+        Stream { reader, room: &mut *self.rest, ready: self.have, left: self.content_length, deadline }
+    }
+}
+
+/// The chunks a streamed body comes in (the last one shorter): the body's
+/// room in the request buffer, which the head never makes smaller.
+pub const CHUNK_LEN: usize = MAX_BODY_LEN;
+
+const _: () = assert!(REQUEST_BUFFER_LEN - MAX_HEAD_LEN >= CHUNK_LEN);
+
+/// A body read chunk by chunk ([`Incoming::stream`]).
+#[derive(Debug)]
+pub struct Stream<'i, R> {
+    reader: &'i mut R,
+    room: &'i mut [u8],
+    /// Bytes at the start of `room` already read (with the head).
+    ready: usize,
+    /// Bytes of the body not yet given out.
+    left: u64,
+    deadline: Instant,
+}
+
+impl<R: Read> Stream<'_, R> {
+    /// Bytes of the body not yet given out.
+    pub fn left(&self) -> u64 {
+        self.left
+    }
+
+    /// The next chunk: `Ok(None)` once the whole body has been given out;
+    /// [`Error::BadRequest`] when the connection closes before it.
+    pub async fn chunk(&mut self) -> Result<Option<&[u8]>, Error> {
+        let len = usize::try_from(self.left).unwrap_or(usize::MAX).min(CHUNK_LEN);
+        if len == 0 {
+            return Ok(None);
+        }
+        let chunk = self.room.get_mut(..len).unwrap_or_default();
+        let mut have = self.ready.min(len);
+        while have < chunk.len() {
+            match fill(self.reader, chunk.get_mut(have..).unwrap_or_default(), self.deadline).await? {
+                0 => return Err(Error::BadRequest),
+                n => have += n,
+            }
+        }
+        self.ready = 0;
+        self.left -= chunk.len() as u64;
+        Ok(Some(chunk))
+    }
 }
 
 /// One read by `deadline`.
@@ -157,11 +249,7 @@ fn parse(head: &[u8]) -> Result<Head<'_>, Error> {
             request.accept_encoding = Some(value);
         }
     }
-    let content_length = content_length.unwrap_or(0);
-    if content_length > MAX_BODY_LEN as u64 {
-        return Err(Error::Limit(Limit::BodyTooLarge));
-    }
-    Ok(Head { request, content_length: content_length as usize })
+    Ok(Head { request, content_length: content_length.unwrap_or(0) })
 }
 
 /// `METHOD SP TARGET SP HTTP/1.x`: the method and the path.
@@ -269,15 +357,13 @@ mod tests {
     }
 
     #[test]
-    fn content_length_is_digits_within_the_body_limit() {
+    fn content_length_is_digits_and_saturates() {
         let length =
             |value: &str| head(&format!("PUT / HTTP/1.1\r\nContent-Length: {value}\r\n\r\n")).map(|h| h.content_length);
         assert_eq!(length("0"), Ok(0));
-        assert_eq!(length(&MAX_BODY_LEN.to_string()), Ok(MAX_BODY_LEN));
-        let over = Err(Error::Limit(Limit::BodyTooLarge));
-        assert_eq!(length(&(MAX_BODY_LEN + 1).to_string()), over);
-        assert_eq!(length("18446744073709551616"), over);
-        assert_eq!(length(&"9".repeat(100)), over);
+        assert_eq!(length("1025"), Ok(1025));
+        assert_eq!(length("18446744073709551616"), Ok(u64::MAX));
+        assert_eq!(length(&"9".repeat(100)), Ok(u64::MAX));
         for bad in ["", "+1", "-1", "1 2", "0x10", "1.0"] {
             assert_eq!(length(bad), Err(Error::BadRequest), "{bad:?}");
         }
@@ -285,5 +371,91 @@ mod tests {
         assert_eq!(head(twice).map(|h| h.content_length), Ok(2));
         let differ = "PUT / HTTP/1.1\r\nContent-Length: 2\r\nContent-Length: 3\r\n\r\n";
         assert_eq!(head(differ), Err(Error::BadRequest));
+    }
+
+    /// Reads `bytes` as one client would send them, `size` bytes a read.
+    struct Client<'a> {
+        bytes: &'a [u8],
+        size: usize,
+    }
+
+    impl embedded_io_async::ErrorType for Client<'_> {
+        type Error = embedded_io_async::ErrorKind;
+    }
+
+    impl Read for Client<'_> {
+        async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
+            let n = buf.len().min(self.size).min(self.bytes.len());
+            let (now, later) = self.bytes.split_at(n);
+            buf[..n].copy_from_slice(now);
+            self.bytes = later;
+            Ok(n)
+        }
+    }
+
+    fn far() -> Instant {
+        Instant::now() + embassy_time::Duration::from_secs(60)
+    }
+
+    #[test]
+    fn a_body_is_read_whole_within_its_limit() {
+        let _clock = crate::server::testing::Clock::take();
+        for size in [1, 7, 64, 4096] {
+            let text = b"PUT /x HTTP/1.1\r\nContent-Length: 5\r\n\r\nhello, and more";
+            let mut buffer = [0; REQUEST_BUFFER_LEN];
+            let mut client = Client { bytes: text, size };
+            let got = embassy_futures::block_on(read(&mut client, &mut buffer, far()));
+            assert_eq!(got.map(|r| r.map(|r| r.body)), Ok(Some(&b"hello"[..])), "size {size}");
+        }
+        let over = format!("PUT /x HTTP/1.1\r\nContent-Length: {}\r\n\r\n", MAX_BODY_LEN + 1);
+        let mut buffer = [0; REQUEST_BUFFER_LEN];
+        let mut client = Client { bytes: over.as_bytes(), size: 4096 };
+        let got = embassy_futures::block_on(read(&mut client, &mut buffer, far()));
+        assert_eq!(got, Err(Error::Limit(Limit::BodyTooLarge)));
+        let mut client = Client { bytes: b"PUT /x HTTP/1.1\r\nContent-Length: 5\r\n\r\nhel", size: 4096 };
+        let got = embassy_futures::block_on(read(&mut client, &mut buffer, far()));
+        assert_eq!(got, Err(Error::BadRequest), "cut off");
+    }
+
+    #[test]
+    fn a_streamed_body_comes_in_whole_chunks_whatever_the_reads() {
+        let _clock = crate::server::testing::Clock::take();
+        let body: Vec<u8> = (0..3 * CHUNK_LEN + 17).map(|i| (i % 251) as u8).collect();
+        for (size, extra) in [(1, 0), (3, 5), (100, 0), (1500, 9), (8192, 0)] {
+            let mut bytes = format!("POST /f HTTP/1.1\r\nContent-Length: {}\r\n\r\n", body.len()).into_bytes();
+            bytes.extend_from_slice(&body);
+            bytes.extend(std::iter::repeat_n(0xee, extra));
+            let mut client = Client { bytes: &bytes, size };
+            let mut buffer = [0; REQUEST_BUFFER_LEN];
+            let mut incoming = embassy_futures::block_on(read_head(&mut client, &mut buffer, far())).unwrap().unwrap();
+            assert_eq!(incoming.content_length, body.len() as u64);
+            let mut stream = incoming.stream(&mut client, far());
+            let mut got = Vec::new();
+            let mut lens = Vec::new();
+            while let Some(chunk) = embassy_futures::block_on(stream.chunk()).unwrap() {
+                lens.push(chunk.len());
+                got.extend_from_slice(chunk);
+            }
+            assert_eq!(got, body, "size {size}");
+            assert_eq!(lens, [CHUNK_LEN, CHUNK_LEN, CHUNK_LEN, 17], "size {size}");
+            assert_eq!(stream.left(), 0);
+        }
+        // Cut off anywhere: an error, never a short body taken as whole.
+        let mut bytes = format!("POST /f HTTP/1.1\r\nContent-Length: {}\r\n\r\n", body.len()).into_bytes();
+        let head_len = bytes.len();
+        bytes.extend_from_slice(&body);
+        for cut in (head_len..bytes.len()).step_by(97) {
+            let mut client = Client { bytes: &bytes[..cut], size: 700 };
+            let mut buffer = [0; REQUEST_BUFFER_LEN];
+            let mut incoming = embassy_futures::block_on(read_head(&mut client, &mut buffer, far())).unwrap().unwrap();
+            let mut stream = incoming.stream(&mut client, far());
+            let end = loop {
+                match embassy_futures::block_on(stream.chunk()) {
+                    Ok(Some(_)) => {}
+                    other => break other.map(|chunk| chunk.is_some()),
+                }
+            };
+            assert_eq!(end, Err(Error::BadRequest), "cut at {cut}");
+        }
     }
 }

@@ -32,7 +32,21 @@ pub struct TestBackend {
     pub located: Cell<Option<Duration>>,
     pub reboots: Cell<usize>,
     pub factory_resets: Cell<usize>,
+    /// The last update file received, and the length of each chunk it came in.
+    pub firmware: RefCell<Vec<u8>>,
+    pub firmware_chunks: RefCell<Vec<usize>>,
+    /// The next update file is refused so, once received whole.
+    #[cfg(feature = "update")]
+    pub firmware_refusal: Cell<Option<super::FirmwareRefusal>>,
 }
+
+/// The largest update file the test backend takes.
+#[cfg(feature = "update")]
+pub const TEST_FIRMWARE_CAPACITY: usize = 6000;
+
+/// The version the test backend says an update file holds.
+#[cfg(feature = "update")]
+pub const TEST_FIRMWARE_VERSION: crate::io::Version = crate::io::Version { major: 9, minor: 8, patch: 7 };
 
 /// The test backend's MAC.
 pub const TEST_MAC: [u8; 6] = [0x02, 0x4d, 0x42, 0x53, 0x49, 0x4d];
@@ -50,6 +64,10 @@ impl TestBackend {
             located: Cell::new(None),
             reboots: Cell::new(0),
             factory_resets: Cell::new(0),
+            firmware: RefCell::new(Vec::new()),
+            firmware_chunks: RefCell::new(Vec::new()),
+            #[cfg(feature = "update")]
+            firmware_refusal: Cell::new(None),
         }
     }
 }
@@ -116,6 +134,28 @@ impl Backend for TestBackend {
             address: Cidr::parse_optional("10.0.0.1/24").ok().flatten(),
             gateway: None,
             link: true,
+        }
+    }
+
+    #[cfg(feature = "update")]
+    fn firmware_capacity(&self) -> usize {
+        TEST_FIRMWARE_CAPACITY
+    }
+
+    #[cfg(feature = "update")]
+    async fn receive_firmware<R: embedded_io_async::Read>(
+        &self,
+        body: &mut super::request::Stream<'_, R>,
+    ) -> Result<crate::io::Version, super::FirmwareRefusal> {
+        self.firmware.borrow_mut().clear();
+        self.firmware_chunks.borrow_mut().clear();
+        while let Some(chunk) = body.chunk().await.map_err(super::FirmwareRefusal::Body)? {
+            self.firmware.borrow_mut().extend_from_slice(chunk);
+            self.firmware_chunks.borrow_mut().push(chunk.len());
+        }
+        match self.firmware_refusal.take() {
+            Some(refusal) => Err(refusal),
+            None => Ok(TEST_FIRMWARE_VERSION),
         }
     }
 }

@@ -354,7 +354,8 @@ fn reboot_factory_reset_and_locate() {
 fn unknown_paths_are_404_and_wrong_methods_405() {
     let clock = Clock::take();
     let http = api();
-    for path in ["/api/events", "/api/firmware", "/api/status/", "/api", "/index.html", "/api/STATUS"] {
+    let firmware = if cfg!(feature = "update") { "/api/events" } else { "/api/firmware" };
+    for path in ["/api/events", firmware, "/api/status/", "/api", "/index.html", "/api/STATUS"] {
         let response = get(http, &clock, path);
         assert_eq!(response.status, 404, "{path}");
         assert_eq!(response.json(), json!({"errors": {"request": "no such resource"}}));
@@ -644,5 +645,113 @@ proptest! {
                 response.json();
             }
         }
+    }
+}
+
+/// `POST /api/firmware` (feature `update`): the file streamed to the
+/// backend, within its capacity, from those who may change the device.
+#[cfg(feature = "update")]
+mod firmware {
+    use super::*;
+    use crate::http::request::CHUNK_LEN;
+    use crate::http::testing::{TEST_FIRMWARE_CAPACITY, TEST_FIRMWARE_VERSION};
+
+    fn file(len: usize) -> Vec<u8> {
+        (0..len).map(|i| (i * 7 % 256) as u8).collect()
+    }
+
+    fn upload(headers: &str, file: &[u8]) -> Vec<u8> {
+        let mut bytes =
+            format!("POST /api/firmware HTTP/1.1\r\n{headers}Content-Length: {}\r\n\r\n", file.len()).into_bytes();
+        bytes.extend_from_slice(file);
+        bytes
+    }
+
+    #[test]
+    fn a_file_is_streamed_whole_to_the_backend_then_the_device_reboots() {
+        let clock = Clock::take();
+        let http = api();
+        let file = file(TEST_FIRMWARE_CAPACITY);
+        let (response, result) = exchange(http, &clock, Some(CLIENT), &upload("", &file));
+        let response = response.unwrap();
+        assert_eq!(response.status, 202);
+        let crate::io::Version { major, minor, patch } = TEST_FIRMWARE_VERSION;
+        let version = format!("{major}.{minor}.{patch}");
+        assert_eq!(response.json(), json!({"firmware": {"version": version, "rebooting": true}}));
+        assert_eq!(result, Ok(Some(Action::Reboot)));
+        let backend = http.backend();
+        assert!(*backend.firmware.borrow() == file, "every byte, in order");
+        let chunks = backend.firmware_chunks.borrow().clone();
+        assert!(chunks.iter().rev().skip(1).all(|&len| len == CHUNK_LEN), "whole chunks but the last: {chunks:?}");
+        assert_eq!(backend.reboots.get(), 0, "the reboot is the caller's, after the connection closed");
+        // A second connection, in reads of every small size: the same file.
+        for size in [1, 5, 700] {
+            let mut connection = Connection::open(http, Some(CLIENT));
+            connection.wire.read_sizes([size]);
+            connection.wire.send(&upload("", &file[..1000]));
+            assert!(connection.poll(), "size {size}");
+            assert_eq!(connection.result, Some(Ok(Some(Action::Reboot))));
+            assert!(*backend.firmware.borrow() == file[..1000]);
+        }
+    }
+
+    #[test]
+    fn a_file_over_the_capacity_is_refused_before_it_is_read() {
+        let _clock = Clock::take();
+        let http = api();
+        let head = format!("POST /api/firmware HTTP/1.1\r\nContent-Length: {}\r\n\r\n", TEST_FIRMWARE_CAPACITY + 1);
+        let mut connection = Connection::open(http, Some(CLIENT));
+        connection.wire.send(head.as_bytes());
+        assert!(connection.poll(), "answered at once, without waiting for the body");
+        let response = Response::parse(&connection.wire.take_replies()).unwrap();
+        assert_eq!(response.status, 413);
+        assert_eq!(response.json(), json!({"errors": {"firmware": format!("over {TEST_FIRMWARE_CAPACITY} bytes")}}));
+        assert_eq!(connection.result, Some(Ok(None)));
+        assert!(http.backend().firmware_chunks.borrow().is_empty());
+    }
+
+    #[test]
+    fn only_those_who_may_change_the_device_update_it() {
+        let clock = Clock::take();
+        let http = api();
+        let backend = http.backend();
+        *backend.password.borrow_mut() = Some(b"s3cret-pass".to_vec());
+        let file = file(100);
+        let (response, result) = exchange(http, &clock, Some(CLIENT), &upload("", &file));
+        assert_eq!((response.unwrap().status, result), (401, Ok(None)));
+        let (response, _) = exchange(http, &clock, Some(CLIENT), &upload(&basic("wrong-pass"), &file));
+        assert_eq!(response.unwrap().status, 401);
+        let (response, _) = exchange(http, &clock, None, &upload(&basic("s3cret-pass"), &file));
+        assert_eq!(response.unwrap().status, 403, "not IPv4: never");
+        assert!(backend.firmware_chunks.borrow().is_empty(), "nothing reached the backend");
+        let (response, result) = exchange(http, &clock, Some(CLIENT), &upload(&basic("s3cret-pass"), &file));
+        assert_eq!((response.unwrap().status, result), (202, Ok(Some(Action::Reboot))));
+        for method in ["GET", "PUT"] {
+            assert_eq!(send(http, &clock, method, "/api/firmware", "", "").status, 405);
+        }
+    }
+
+    #[test]
+    fn a_refused_or_cut_off_file_changes_nothing() {
+        let clock = Clock::take();
+        let http = api();
+        let backend = http.backend();
+        backend.firmware_refusal.set(Some(FirmwareRefusal::Invalid("the signature does not match")));
+        let (response, result) = exchange(http, &clock, Some(CLIENT), &upload("", &file(3000)));
+        let response = response.unwrap();
+        assert_eq!((response.status, result), (400, Ok(None)));
+        assert_eq!(response.json(), json!({"errors": {"firmware": "the signature does not match"}}));
+        backend.firmware_refusal.set(Some(FirmwareRefusal::Storage));
+        let (response, result) = exchange(http, &clock, Some(CLIENT), &upload("", &file(10)));
+        assert_eq!((response.unwrap().status, result), (500, Ok(None)));
+        // Cut off: the connection closes before the whole file came.
+        let whole = upload("", &file(3000));
+        let mut connection = Connection::open(http, Some(CLIENT));
+        connection.wire.send(&whole[..whole.len() - 1]);
+        assert!(!connection.poll(), "waits for the rest");
+        connection.wire.close();
+        assert!(connection.poll());
+        assert_eq!(connection.result, Some(Err(Error::BadRequest)));
+        assert_eq!(backend.reboots.get(), 0);
     }
 }
