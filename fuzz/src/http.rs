@@ -20,7 +20,8 @@ use core::task::Poll;
 use std::cell::{Cell, RefCell};
 
 use adapter::device::Device;
-use adapter::http::{self, Action, Backend, Buffers, Http, NetworkStatus, Refusal};
+use adapter::http::{self, Action, Backend, Buffers, FirmwareRefusal, Http, NetworkStatus, Refusal};
+use adapter::io::Version;
 use adapter::server::{Server, Watchdog};
 use adapter::settings::{Field, Kind, NetMode, Settings};
 use embassy_time::{Duration, MockDriver};
@@ -44,7 +45,12 @@ struct FuzzBackend<'a> {
     save_fails: Cell<bool>,
     applied: Cell<u32>,
     located: Cell<bool>,
+    /// The update files received whole, each as it arrived.
+    firmware: RefCell<Vec<Vec<u8>>>,
 }
+
+/// The largest update file the backend takes: small, so inputs reach it.
+const FIRMWARE_CAPACITY: usize = 2500;
 
 impl Backend for FuzzBackend<'_> {
     fn server(&self) -> &Server<'_, Device<'_>> {
@@ -99,6 +105,27 @@ impl Backend for FuzzBackend<'_> {
 
     fn network(&self) -> NetworkStatus {
         NetworkStatus { mode: NetMode::Static, address: None, gateway: None, link: true }
+    }
+
+    fn firmware_capacity(&self) -> usize {
+        FIRMWARE_CAPACITY
+    }
+
+    /// Takes a file whose first byte is not 0 (a stand-in for the real check).
+    async fn receive_firmware<R: embedded_io_async::Read>(
+        &self,
+        body: &mut http::request::Stream<'_, R>,
+    ) -> Result<Version, FirmwareRefusal> {
+        let mut file = Vec::new();
+        let mut last = false;
+        while let Some(chunk) = body.chunk().await.map_err(FirmwareRefusal::Body)? {
+            assert!(!last, "whole chunks but the last");
+            last = chunk.len() < http::request::CHUNK_LEN;
+            file.extend_from_slice(chunk);
+        }
+        let taken = file.first().is_some_and(|&first| first != 0);
+        self.firmware.borrow_mut().push(file);
+        if taken { Ok(Version { major: 1, minor: 2, patch: 3 }) } else { Err(FirmwareRefusal::Invalid("no")) }
     }
 }
 
@@ -159,7 +186,10 @@ fn one_response(bytes: &[u8]) -> Response {
 /// The longest a connection may take: the request's deadline, the
 /// response's, and a failed password's delay.
 const BOUND: Duration = Duration::from_secs(
-    http::REQUEST_TIMEOUT.as_secs() + http::WRITE_TIMEOUT.as_secs() + http::AUTH_FAILURE_DELAY.as_secs(),
+    http::REQUEST_TIMEOUT.as_secs()
+        + http::UPLOAD_TIMEOUT.as_secs()
+        + http::WRITE_TIMEOUT.as_secs()
+        + http::AUTH_FAILURE_DELAY.as_secs(),
 );
 
 /// The backend's MAC.
@@ -182,6 +212,7 @@ pub fn http(data: &[u8]) {
         save_fails: Cell::new(flag(HTTP_SAVE_FAILS)),
         applied: Cell::new(0),
         located: Cell::new(false),
+        firmware: RefCell::new(Vec::new()),
     };
     let api = Http::new(&backend);
 
@@ -258,14 +289,33 @@ pub fn http(data: &[u8]) {
         assert!(asked("PUT", "/api/password") && status == Some(200), "the password changed");
         assert!(may_change, "the password changed from outside or without the current one");
     }
+    // An update file: only through its endpoint, whole, from those who may
+    // change the device; taken (and a reboot asked) exactly when accepted.
+    let files = backend.firmware.borrow();
+    assert!(files.len() <= 1, "one request, one file");
+    let uploaded = asked("POST", "/api/firmware");
+    if let Some(file) = files.first() {
+        assert!(uploaded && may_change, "a file from outside, without the password or another endpoint");
+        assert!(file.len() <= FIRMWARE_CAPACITY);
+        assert!(contains(&input.stream, file), "the file is bytes the client sent, in order");
+        let taken = file.first().is_some_and(|&first| first != 0);
+        assert_eq!(status == Some(202), taken, "202 exactly for a file taken");
+    }
     match result {
         Ok(Some(action)) => {
             let path = match action {
+                Action::Reboot if uploaded => "/api/firmware",
                 Action::Reboot => "/api/reboot",
                 Action::FactoryReset => "/api/factory-reset",
             };
             assert!(asked("POST", path) && status == Some(202), "{action:?} without its request");
             assert!(may_change);
+            if path == "/api/firmware" {
+                assert!(
+                    files.first().is_some_and(|file| file.first().is_some_and(|&b| b != 0)),
+                    "a reboot without a file taken"
+                );
+            }
         }
         Ok(None) | Err(_) => {}
     }

@@ -197,6 +197,11 @@ fn http_seeds() -> Vec<Vec<u8>> {
         http_request("GET", "/api/events?x=1", "", ""),
         b"PUT /api/settings HTTP/1.1\r\nContent-Length: 4096\r\n\r\n{".to_vec(),
         b"GET /api/status HTTP/1.1\r\nX: \0Content-Length: 1\r\n\r\n".to_vec(),
+        // Update files: one taken (first byte not 0) over two chunks, one
+        // refused, one over the capacity.
+        http_request("POST", "/api/firmware", "", &"F".repeat(1100)),
+        http_request("POST", "/api/firmware", auth, &format!("\0{}", "x".repeat(300))),
+        b"POST /api/firmware HTTP/1.1\r\nContent-Length: 9999\r\n\r\nF".to_vec(),
     ];
     let seed = |flags: u8, cuts: &[u8], stream: &[u8]| HttpInput { flags, cuts, stream }.to_bytes();
     let mut seeds: Vec<Vec<u8>> = requests.iter().map(|r| seed(0, &[], r)).collect();
