@@ -9,18 +9,14 @@
 //! be of one poll: the controller writes one generation into every
 //! telemetry register of a snapshot, so a read that mixes two polls shows.
 
-use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
+use system_tests::controller::{CONTROLLER_IP, Controller};
 use system_tests::hal_sim::{HalSim, controller_version};
-use system_tests::netns::Namespace;
 use tokio_modbus::client::Context;
 use tokio_modbus::prelude::*;
 
-/// Where the controller listens: the host side of hal-sim's TAP.
-const CONTROLLER_IP: &str = "198.18.0.1";
 /// The period the tests poll at.
 const POLL_MS: u64 = 100;
 /// The longest a master's read may take: it must never wait for the link.
@@ -32,73 +28,6 @@ const SETTLE: Duration = Duration::from_secs(20);
 const PEER_VERSION: [u16; 3] = [2, 11, 3];
 /// Robot state NOT READY.
 const NOT_READY: u16 = 15;
-
-fn script() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("peers/robot_controller.py")
-}
-
-/// A controller process, killed on drop.
-struct Controller {
-    child: Child,
-}
-
-impl Controller {
-    /// Starts tests/peers/robot_controller.py in `ns` on `port` in `mode`
-    /// and waits for its "ready" line.
-    fn start(ns: &Namespace, port: u16, mode: &str) -> Self {
-        let probe = Command::new("python3").args(["-c", "import pymodbus"]).output();
-        assert!(probe.is_ok_and(|o| o.status.success()), "these tests need python3 with pymodbus");
-        let mut child = ns
-            .command("python3")
-            .arg(script())
-            .args([CONTROLLER_IP, &port.to_string(), mode])
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("python3 starts");
-        let stdout = child.stdout.take().expect("its stdout");
-        let (tx, rx) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                if line.starts_with("write") {
-                    eprintln!("controller: {line}");
-                }
-                let _ = tx.send(line);
-            }
-        });
-        let deadline = Instant::now() + Duration::from_secs(20);
-        loop {
-            match rx.recv_timeout(deadline.saturating_duration_since(Instant::now())) {
-                Ok(line) if line == "ready" => break,
-                Ok(_) => {}
-                Err(_) => panic!("the controller ({mode}) did not get ready"),
-            }
-        }
-        // The rest of its lines: a write would show as "write FC" (asserted by the tests through `writes`).
-        Self { child }
-    }
-
-    fn signal(&self, signal: i32) {
-        // SAFETY: kill(2) with a pid this test started and still owns.
-        let rc = unsafe { libc::kill(self.child.id() as i32, signal) };
-        assert_eq!(rc, 0, "kill({signal})");
-    }
-
-    fn kill(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-impl Drop for Controller {
-    fn drop(&mut self) {
-        // A stopped process must go on to die.
-        // SAFETY: as in `signal`; the process may already be gone.
-        unsafe { libc::kill(self.child.id() as i32, libc::SIGCONT) };
-        self.kill();
-    }
-}
 
 /// The controller's generation now (the wall clock in 10 ms steps, mod 65536).
 fn generation_now() -> u16 {
