@@ -226,6 +226,7 @@ mod tests {
     #[derive(Default)]
     struct TestPlatform {
         reboots: Cell<u32>,
+        robot: Cell<Option<RobotSettings>>,
     }
 
     impl Platform for TestPlatform {
@@ -244,6 +245,9 @@ mod tests {
         fn locate(&self, _: Duration) {}
         fn salt(&self) -> [u8; 16] {
             [9; 16]
+        }
+        fn apply_robot(&self, robot: &RobotSettings) {
+            self.robot.set(Some(*robot));
         }
     }
 
@@ -292,6 +296,17 @@ mod tests {
         // SAFETY (test): the controller that borrowed the memory is gone.
         let memory = unsafe { core::slice::from_raw_parts_mut(address as *mut u8, 2 * PAGE) };
         assert_eq!(controller(memory).settings(), changed);
+    }
+
+    #[test]
+    fn the_robot_settings_reach_the_platform_at_once() {
+        let _clock = Clock::take();
+        let control = controller(memory());
+        let mut changed = control.settings();
+        changed.set(Field::RobotLinkAddress, "198.18.0.1:1502/2").unwrap();
+        changed.set(Field::RobotPollInterval, "250").unwrap();
+        assert_eq!(block_on(control.apply(&changed)), Ok(false), "no reboot");
+        assert_eq!(control.platform().robot.get(), Some(changed.robot));
     }
 
     #[test]
