@@ -18,6 +18,7 @@ pub mod connection;
 mod http;
 pub mod input;
 pub mod mdns;
+pub mod reply;
 pub mod storage;
 
 use core::pin::pin;

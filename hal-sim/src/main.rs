@@ -18,6 +18,7 @@ use std::process::ExitCode;
 
 use adapter::device::{self, Device};
 use adapter::http::{self, Http, MAX_HTTP_CONNECTIONS};
+use adapter::link::{self as robot_link, Gated, Link};
 use adapter::mdns;
 use adapter::server::{self, SOCKET_POOL, Server, SlotId};
 use adapter::settings::Settings;
@@ -38,8 +39,12 @@ type ModbusServer = Server<'static, Device<'static>>;
 /// The HTTP API over hal-sim's backend.
 type Api = Http<'static, SimController>;
 
-/// Sockets in the stack: the Modbus listeners, DHCP's, the HTTP listeners and mDNS's.
+/// Sockets in the stack: the Modbus listeners, DHCP's, the HTTP listeners, mDNS's and the robot link's.
 const NET_SOCKETS: usize = adapter::net::STACK_SOCKETS;
+
+/// The robot link (`--robot-link`, `robot.link`): the source of the robot's
+/// points while it is set; the simulated robot's otherwise.
+pub(crate) static ROBOT_LINK: Link = Link::new();
 
 /// Exit status for a command line hal-sim cannot run with.
 const EXIT_USAGE: u8 = 2;
@@ -128,6 +133,7 @@ fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>, fl
     store.flash().start_timing();
     let settings: &'static Settings = Box::leak(Box::new(running_settings(&loaded.settings, &options)));
 
+    ROBOT_LINK.configure(&settings.robot);
     let name = settings.device.name.or_default(MAC);
     let net_config = adapter::net::initial_config(&settings.network, &name);
     let resources = Box::leak(Box::new(StackResources::<NET_SOCKETS>::new()));
@@ -200,6 +206,7 @@ fn start(
     spawner.spawn(net_task(runner)?);
     spawner.spawn(link_task(stack, server, settings, controller)?);
     spawner.spawn(refresh_task(board)?);
+    spawner.spawn(robot_link_task(stack, board.device)?);
     for slot in 0..SOCKET_POOL {
         spawner.spawn(modbus_task(stack, server, slot)?);
     }
@@ -258,10 +265,17 @@ async fn link_task(
     adapter::net::run(stack, &settings.network, server, names).await
 }
 
+/// The refresh: the simulated robot feeds the robot's points only while no link is set.
 #[embassy_executor::task]
 async fn refresh_task(board: &'static Board) -> ! {
-    let (mut pins, mut robot) = board.sources();
-    device::refresh_loop(board.device, &mut pins, &mut robot).await
+    let (mut pins, robot) = board.sources();
+    device::refresh_loop(board.device, &mut pins, &mut Gated::new(&ROBOT_LINK, robot)).await
+}
+
+/// Polls the robot controller while `robot.link` is set (DEVICE.md section 4).
+#[embassy_executor::task]
+async fn robot_link_task(stack: Stack<'static>, device: &'static Device<'static>) -> ! {
+    robot_link::run(stack, device, &ROBOT_LINK).await
 }
 
 /// Prints the one line that says hal-sim is ready, once the address is up.
@@ -270,12 +284,13 @@ async fn ready_task(stack: Stack<'static>, server: &'static ModbusServer, option
     stack.wait_config_up().await;
     let config = server.config();
     log::info!(
-        "max {} connections, idle timeout {:?}, unit id {:?}, write policy {:?}, robot {:?}",
+        "max {} connections, idle timeout {:?}, unit id {:?}, write policy {:?}, robot {:?}, robot link {}",
         config.max_connections,
         config.idle_timeout.map(|t| t.as_secs()),
         config.policy.unit_id,
         config.policy.write_policy,
         options.robot,
+        ROBOT_LINK.status().target.map_or_else(|| "none".to_owned(), |link| link.to_string()),
     );
     if let Some(path) = &options.control {
         log::info!("control socket at {}", path.display());

@@ -118,10 +118,13 @@ impl Board {
         (self.inputs.digital.get(), self.inputs.tool.get(), self.inputs.analog.get())
     }
 
-    /// Applies a robot event and pushes the new status into the image at once.
+    /// Applies a robot event and pushes the new status into the image at
+    /// once (while no robot link is set: then the link feeds the image).
     pub fn robot_event(&self, event: Event) -> Result<RobotStatus, Refused> {
         let status = self.robot.borrow_mut().event(event)?;
-        self.device.set_robot_status(&status);
+        if !crate::ROBOT_LINK.is_set() {
+            self.device.set_robot_status(&status);
+        }
         Ok(status)
     }
 

@@ -2,6 +2,7 @@
 //! under test.
 
 pub mod abuse;
+pub mod controller;
 pub mod dhcp;
 pub mod hal_sim;
 pub mod mdns;

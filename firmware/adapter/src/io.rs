@@ -186,6 +186,22 @@ pub trait Robot {
     /// The controller's version (registers 256-258); [`Version::NONE`]
     /// while the source does not know it.
     fn version(&mut self) -> Version;
+
+    /// What the refresh applies to the robot's points, as one whole; `None`
+    /// when this source does not feed them through the refresh (the robot
+    /// link applies each of its polls itself, `link`).
+    fn sample(&mut self) -> Option<RobotSample> {
+        Some(RobotSample { status: self.status(), telemetry: self.telemetry(), version: self.version() })
+    }
+}
+
+/// One sample of every robot point, applied to the image under one lock.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RobotSample {
+    pub status: RobotStatus,
+    pub telemetry: Telemetry,
+    pub version: Version,
 }
 
 /// No robot link: NOT READY and zeros (docs/data-map.md, *Robot state*).

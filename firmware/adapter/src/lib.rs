@@ -10,6 +10,7 @@
 //! - [`storage`]: the settings and the admin password saved on the device,
 //!   power-fail safe, over any `embedded-storage-async` NOR flash.
 //! - `http` (feature `http`): the HTTP JSON API over the settings, the server and the device.
+//! - `link` (feature `robot-link`): the robot link, a client of the robot controller's own Modbus TCP server.
 //! - `mdns` (feature `mdns`): the mDNS responder: `NAME.local` and the device's services.
 //!
 //! The library is `no_std` and allocation-free; every size is a named constant.
@@ -26,6 +27,8 @@ pub mod executor;
 #[cfg(feature = "http")]
 pub mod http;
 pub mod io;
+#[cfg(feature = "robot-link")]
+pub mod link;
 pub mod load;
 pub mod map;
 #[cfg(feature = "mdns")]

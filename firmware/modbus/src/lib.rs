@@ -9,6 +9,7 @@
 #[macro_use]
 mod macros;
 
+pub mod client;
 pub mod diagnostics;
 pub mod exception;
 pub mod identification;

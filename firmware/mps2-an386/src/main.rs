@@ -69,6 +69,10 @@ type Api = adapter::http::Http<'static, Backend>;
 
 static LEDS: Leds = Leds;
 
+/// The robot link (`robot-link`): the source of the robot's points while `robot.link` is set.
+#[cfg(feature = "robot-link")]
+static ROBOT_LINK: adapter::link::Link = adapter::link::Link::new();
+
 #[cortex_m_rt::entry]
 fn main() -> ! {
     defmt::info!("firmware {} on mps2-an386", env!("CARGO_PKG_VERSION"));
@@ -107,6 +111,8 @@ fn main() -> ! {
     // sequence numbers and ports between boards, so the MAC will do.
     let [a, b, c, d, e, f] = mac;
     let seed = u64::from_le_bytes([a, b, c, d, e, f, 0x4d, 0x42]);
+    #[cfg(feature = "robot-link")]
+    ROBOT_LINK.configure(&settings.robot);
     let name = settings.device.name.or_default(mac);
     let config = adapter::net::initial_config(&settings.network, &name);
     let (stack, runner) = embassy_net::new(ethernet, config, RESOURCES.init(StackResources::new()), seed);
@@ -200,6 +206,8 @@ fn spawn_all(
         spawner.spawn(mdns_task(stack, names, services)?);
     }
     spawner.spawn(refresh_task(device)?);
+    #[cfg(feature = "robot-link")]
+    spawner.spawn(robot_link_task(stack, device)?);
     for slot in 0..SOCKET_POOL {
         spawner.spawn(modbus_task(stack, server, slot)?);
     }
@@ -244,7 +252,19 @@ async fn mdns_task(stack: Stack<'static>, names: &'static dyn DeviceName, servic
 
 #[embassy_executor::task]
 async fn refresh_task(device: &'static Device<'static>) -> ! {
-    device::refresh_loop(device, &mut RamInputs::default(), &mut NoRobot).await
+    #[cfg(not(feature = "robot-link"))]
+    let mut robot = NoRobot;
+    // The link wins while it is set; no robot otherwise.
+    #[cfg(feature = "robot-link")]
+    let mut robot = adapter::link::Gated::new(&ROBOT_LINK, NoRobot);
+    device::refresh_loop(device, &mut RamInputs::default(), &mut robot).await
+}
+
+/// Polls the robot controller while `robot.link` is set.
+#[cfg(feature = "robot-link")]
+#[embassy_executor::task]
+async fn robot_link_task(stack: Stack<'static>, device: &'static Device<'static>) -> ! {
+    adapter::link::run(stack, device, &ROBOT_LINK).await
 }
 
 /// One Modbus listener per socket; its buffers live in the task's static storage.

@@ -131,6 +131,21 @@ impl Platform for Mps2 {
         high.copy_from_slice(&second.to_le_bytes());
         salt
     }
+
+    #[cfg(feature = "robot-link")]
+    fn robot_source(&self) -> adapter::http::RobotSource {
+        if crate::ROBOT_LINK.is_set() { adapter::http::RobotSource::Link } else { adapter::http::RobotSource::None }
+    }
+
+    #[cfg(feature = "robot-link")]
+    fn robot_link(&self) -> Option<adapter::http::RobotLinkStatus> {
+        crate::ROBOT_LINK.http_status()
+    }
+
+    #[cfg(feature = "robot-link")]
+    fn apply_robot(&self, robot: &adapter::settings::RobotSettings) {
+        crate::ROBOT_LINK.configure(robot);
+    }
 }
 
 /// One step of splitmix64 (Steele, Lea and Flood, 2014): spreads every

@@ -54,13 +54,18 @@ type BoardRobot = adapter::io::NoRobot;
 #[cfg(feature = "sim-robot")]
 type BoardRobot = sim_robot::SimRobot;
 
-/// No robot link on this board: NOT READY and zeros, or the simulated robot for demos.
+/// The board's own robot source: NOT READY and zeros, or the simulated robot
+/// for demos (the robot link, `robot-link`, wins over it while set).
 const fn robot() -> BoardRobot {
     #[cfg(not(feature = "sim-robot"))]
     return adapter::io::NoRobot;
     #[cfg(feature = "sim-robot")]
     return sim_robot::SimRobot::new(sim_robot::Mode::Demo);
 }
+
+/// The robot link (`robot-link`): the source of the robot's points while `robot.link` is set.
+#[cfg(feature = "robot-link")]
+pub static ROBOT_LINK: adapter::link::Link = adapter::link::Link::new();
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
@@ -89,6 +94,8 @@ async fn start(spawner: Spawner) {
     #[cfg(not(feature = "http"))]
     let settings: &'static Settings = &SETTINGS;
 
+    #[cfg(feature = "robot-link")]
+    ROBOT_LINK.configure(&settings.robot);
     static DEVICE: StaticCell<Device<'static>> = StaticCell::new();
     let device = &*DEVICE.init(Device::new(settings.watchdog(), MODEL, board.outputs));
     device.drive_outputs();
@@ -130,6 +137,8 @@ async fn start(spawner: Spawner) {
         spawner.spawn(unwrap!(modbus_task(stack, server, slot)));
     }
     spawner.spawn(unwrap!(refresh_task(device, board.inputs)));
+    #[cfg(feature = "robot-link")]
+    spawner.spawn(unwrap!(robot_link_task(stack, device)));
     #[cfg(feature = "http")]
     {
         for _ in 0..adapter::http::MAX_HTTP_CONNECTIONS {
@@ -149,8 +158,19 @@ async fn start(spawner: Spawner) {
 /// The 100 ms refresh of the inputs, the analog readings and the robot data.
 #[embassy_executor::task]
 async fn refresh_task(device: &'static Device<'static>, mut inputs: pins::Inputs) -> ! {
+    #[cfg(not(feature = "robot-link"))]
     let mut robot = robot();
+    // The link wins over the board's own source while it is set.
+    #[cfg(feature = "robot-link")]
+    let mut robot = adapter::link::Gated::new(&ROBOT_LINK, robot());
     device::refresh_loop(device, &mut inputs, &mut robot).await
+}
+
+/// Polls the robot controller while `robot.link` is set.
+#[cfg(feature = "robot-link")]
+#[embassy_executor::task]
+async fn robot_link_task(stack: embassy_net::Stack<'static>, device: &'static Device<'static>) -> ! {
+    adapter::link::run(stack, device, &ROBOT_LINK).await
 }
 
 /// Answers mDNS queries for the name in force and the services.

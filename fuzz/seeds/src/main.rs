@@ -4,7 +4,7 @@
 //! the store's from records and real saves (`firmware_fuzz::storage::seeds`):
 //!
 //! ```text
-//! cargo run -p fuzz-seeds -- DIR    # writes DIR/session, DIR/handler, DIR/codec, DIR/store, DIR/record, DIR/http, DIR/mdns
+//! cargo run -p fuzz-seeds -- DIR    # writes DIR/session, DIR/handler, DIR/codec, DIR/store, DIR/record, DIR/http, DIR/mdns, DIR/reply
 //! ```
 //!
 //! The http target's seeds are requests to every endpoint of the API
@@ -36,9 +36,10 @@ fn main() {
         write(&dir.join("record"), &firmware_fuzz::storage::record_seeds(), firmware_fuzz::record),
         write(&dir.join("http"), &http_seeds(), firmware_fuzz::http),
         write(&dir.join("mdns"), &firmware_fuzz::mdns::seeds(), firmware_fuzz::mdns),
+        write(&dir.join("reply"), &firmware_fuzz::reply::seeds(), firmware_fuzz::reply::reply),
     ];
     println!(
-        "fuzz-seeds: {} session, {} handler, {} codec, {} store, {} record, {} http, {} mdns seeds in {}",
+        "fuzz-seeds: {} session, {} handler, {} codec, {} store, {} record, {} http, {} mdns, {} reply seeds in {}",
         written[0],
         written[1],
         written[2],
@@ -46,6 +47,7 @@ fn main() {
         written[4],
         written[5],
         written[6],
+        written[7],
         dir.display()
     );
 }

@@ -15,7 +15,7 @@ use embassy_time::{Duration, Instant, Ticker};
 
 pub use self::stats::{Counters, Stats};
 pub use self::watchdog::{SafeState, Watchdog};
-use crate::io::{InputPins, OutputPins, Robot, RobotStatus};
+use crate::io::{InputPins, OutputPins, Robot, RobotSample, RobotStatus};
 use crate::map::Image;
 use crate::map::table::reg;
 use crate::modbus::mbap::MAX_ADU_LEN;
@@ -176,7 +176,9 @@ impl<'a> Device<'a> {
     }
 
     /// One refresh: samples every source and re-asserts every source-backed
-    /// point (so a `seed`-policy write to a read-only point lasts at most one period).
+    /// point (so a `seed`-policy write to a read-only point lasts at most one
+    /// period). The robot's points are left to the robot link while it is the
+    /// source ([`Robot::sample`] is `None`): it applies each poll itself.
     pub fn refresh(&self, inputs: &mut impl InputPins, robot: &mut impl Robot) {
         let types = self.read(Image::analog_input_types);
         let digital = inputs.digital();
@@ -185,18 +187,18 @@ impl<'a> Device<'a> {
             let kind = types.get(channel).copied().unwrap_or_default();
             inputs.analog(channel, kind).min(kind.max())
         });
-        let status = robot.status();
-        let telemetry = robot.telemetry();
-        let version = robot.version();
+        let robot = robot.sample();
         self.update(|image| {
             image.set_register(reg::DIGITAL_INPUTS, digital);
             image.set_register(reg::TOOL_INPUTS, u16::from(tool));
             for (channel, value) in analog.into_iter().enumerate() {
                 image.set_analog_input(channel, value);
             }
-            image.set_controller_version(&version);
-            image.set_robot_status(&status);
-            image.set_telemetry(&telemetry);
+            if let Some(RobotSample { status, telemetry, version }) = robot {
+                image.set_controller_version(&version);
+                image.set_robot_status(&status);
+                image.set_telemetry(&telemetry);
+            }
         });
     }
 }

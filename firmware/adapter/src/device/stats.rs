@@ -107,6 +107,13 @@ counters! {
     refused_connections,
     /// Times the communication watchdog put the outputs in their safe state.
     watchdog_trips,
+    /// Robot link: polls of the controller applied whole (DEVICE.md section 4).
+    robot_polls,
+    /// Robot link: polls that failed (no connection, a timeout, an exception,
+    /// a reply that makes no sense).
+    robot_errors,
+    /// Robot link: times it went down (3 failed polls in a row, or no connection).
+    robot_link_downs,
 }
 
 impl Stats {
@@ -172,7 +179,8 @@ mod tests {
         assert_eq!(
             c.to_string(),
             "requests=2 bad_protocol=0 bad_length=0 bad_function=1 bad_address=1 bad_value=1 refused_writes=1 \
-             other_unit=1 evictions=0 timeouts=0 refused_connections=0 watchdog_trips=0"
+             other_unit=1 evictions=0 timeouts=0 refused_connections=0 watchdog_trips=0 robot_polls=0 \
+             robot_errors=0 robot_link_downs=0"
         );
         let mut pairs = Vec::new();
         c.for_each(|name, value| pairs.push(format!("{name}={value}")));
@@ -200,6 +208,9 @@ mod tests {
             &stats.timeouts,
             &stats.refused_connections,
             &stats.watchdog_trips,
+            &stats.robot_polls,
+            &stats.robot_errors,
+            &stats.robot_link_downs,
         ]
         .into_iter()
         .enumerate()
@@ -208,7 +219,7 @@ mod tests {
         }
         assert!(all(&stats).iter().all(|&v| v > 0), "each counter set: {:?}", all(&stats));
         stats.clear();
-        assert_eq!(all(&stats), [0; 12]);
+        assert_eq!(all(&stats), [0; 15]);
     }
 
     #[test]

@@ -14,10 +14,10 @@ use embassy_sync::mutex::Mutex;
 use embassy_time::Duration;
 use embedded_storage_async::nor_flash::NorFlash;
 
-use super::backend::{Backend, NetworkStatus, Refusal, RobotSource};
+use super::backend::{Backend, NetworkStatus, Refusal, RobotLinkStatus, RobotSource};
 use crate::device::Device;
 use crate::server::Server;
-use crate::settings::Settings;
+use crate::settings::{RobotSettings, Settings};
 use crate::storage::{Loaded, Password, PasswordHash, StorageStatus, Store};
 
 /// What only the program around the adapter knows or can do.
@@ -45,6 +45,15 @@ pub trait Platform {
     /// Where the robot's points come from.
     fn robot_source(&self) -> RobotSource {
         RobotSource::None
+    }
+    /// The robot link's health (`None`: no link set, or none built).
+    fn robot_link(&self) -> Option<RobotLinkStatus> {
+        None
+    }
+    /// Puts the `robot` settings in force (the robot link's target and
+    /// period, which apply at once); a program without a link ignores them.
+    fn apply_robot(&self, robot: &RobotSettings) {
+        let _ = robot;
     }
 }
 
@@ -111,6 +120,7 @@ impl<F: NorFlash, P: Platform> Backend for Controller<'_, F, P> {
         let port = self.server.with_config(|config| config.port);
         self.server.set_config(crate::server::Config { port, ..settings.server_config(self.platform.mac()) });
         self.server.service().set_watchdog(settings.watchdog());
+        self.platform.apply_robot(&settings.robot);
         info!("settings: saved and applied");
         Ok(before.reboot_required(settings))
     }
@@ -179,6 +189,10 @@ impl<F: NorFlash, P: Platform> Backend for Controller<'_, F, P> {
         self.platform.robot_source()
     }
 
+    fn robot_link(&self) -> Option<RobotLinkStatus> {
+        self.platform.robot_link()
+    }
+
     fn storage(&self) -> Option<StorageStatus> {
         Some(self.state.lock(|state| state.borrow().storage))
     }
@@ -212,6 +226,7 @@ mod tests {
     #[derive(Default)]
     struct TestPlatform {
         reboots: Cell<u32>,
+        robot: Cell<Option<RobotSettings>>,
     }
 
     impl Platform for TestPlatform {
@@ -230,6 +245,9 @@ mod tests {
         fn locate(&self, _: Duration) {}
         fn salt(&self) -> [u8; 16] {
             [9; 16]
+        }
+        fn apply_robot(&self, robot: &RobotSettings) {
+            self.robot.set(Some(*robot));
         }
     }
 
@@ -278,6 +296,17 @@ mod tests {
         // SAFETY (test): the controller that borrowed the memory is gone.
         let memory = unsafe { core::slice::from_raw_parts_mut(address as *mut u8, 2 * PAGE) };
         assert_eq!(controller(memory).settings(), changed);
+    }
+
+    #[test]
+    fn the_robot_settings_reach_the_platform_at_once() {
+        let _clock = Clock::take();
+        let control = controller(memory());
+        let mut changed = control.settings();
+        changed.set(Field::RobotLinkAddress, "198.18.0.1:1502/2").unwrap();
+        changed.set(Field::RobotPollInterval, "250").unwrap();
+        assert_eq!(block_on(control.apply(&changed)), Ok(false), "no reboot");
+        assert_eq!(control.platform().robot.get(), Some(changed.robot));
     }
 
     #[test]

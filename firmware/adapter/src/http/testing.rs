@@ -33,7 +33,9 @@ pub struct TestBackend {
     pub reboots: Cell<usize>,
     pub factory_resets: Cell<usize>,
     /// The last update file received, and the length of each chunk it came in.
+    #[cfg(feature = "update")]
     pub firmware: RefCell<Vec<u8>>,
+    #[cfg(feature = "update")]
     pub firmware_chunks: RefCell<Vec<usize>>,
     /// The next update file is refused so, once received whole.
     #[cfg(feature = "update")]
@@ -64,7 +66,9 @@ impl TestBackend {
             located: Cell::new(None),
             reboots: Cell::new(0),
             factory_resets: Cell::new(0),
+            #[cfg(feature = "update")]
             firmware: RefCell::new(Vec::new()),
+            #[cfg(feature = "update")]
             firmware_chunks: RefCell::new(Vec::new()),
             #[cfg(feature = "update")]
             firmware_refusal: Cell::new(None),

@@ -70,7 +70,7 @@ fn the_status_document_shows_the_device() {
         status["connections"],
         json!([{"peer": "198.18.0.1", "requests": null, "idle_ms": 3000, "read_only": true}])
     );
-    assert_eq!(status["counters"].as_object().unwrap().len(), 12);
+    assert_eq!(status["counters"].as_object().unwrap().len(), 15);
     assert_eq!(status["counters"]["requests"], 0);
     assert_eq!(status["watchdog"], json!({"timeout_ms": 0, "tripped": false}));
     assert!(status["storage"].is_null());
