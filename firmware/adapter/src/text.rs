@@ -27,8 +27,13 @@ macro_rules! unsigned {
 unsigned!(u8, u16, u32, u64, usize);
 
 /// `value` in decimal, in `buf`.
+#[inline]
 pub fn decimal(value: impl Unsigned, buf: &mut [u8; MAX_DIGITS]) -> &str {
-    let mut value = value.widen();
+    decimal_u64(value.widen(), buf)
+}
+
+/// [`decimal`], once for every width.
+fn decimal_u64(mut value: u64, buf: &mut [u8; MAX_DIGITS]) -> &str {
     let mut start = MAX_DIGITS;
     for slot in buf.iter_mut().rev() {
         *slot = b'0' + (value % 10) as u8;

@@ -427,7 +427,13 @@ impl<'b> Out<'b> {
     }
 
     /// Appends a number.
+    #[inline]
     pub fn number(&mut self, value: impl Unsigned) {
+        self.number_u64(value.widen());
+    }
+
+    /// [`Self::number`], once for every width.
+    fn number_u64(&mut self, value: u64) {
         self.text(text::decimal(value, &mut [0; text::MAX_DIGITS]));
     }
 

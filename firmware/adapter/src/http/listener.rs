@@ -40,7 +40,7 @@ pub async fn listen<B: Backend>(stack: Stack<'_>, http: &Http<'_, B>, port: u16)
             serve(http, peer.address, reader, writer, &mut buffers).await
         };
         if let Err(e) = served {
-            info!("http: {}: {}", peer, e);
+            debug!("http: {}: {}", peer, e);
         }
         socket.close();
         let _ = with_timeout(CLOSE_TIMEOUT, socket.flush()).await;

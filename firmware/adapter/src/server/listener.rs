@@ -49,7 +49,7 @@ pub async fn listen<S: Service>(stack: Stack<'_>, server: &Server<'_, S>, slot: 
         let endpoint = socket.remote_endpoint();
         if endpoint.is_none() {
             // Reset by the client before this task ran: nobody to refuse or serve.
-            info!("slot {}: the client left before it was served", slot);
+            debug!("slot {}: the client left before it was served", slot);
             continue;
         }
         let peer = Peer::of(endpoint);
@@ -66,7 +66,7 @@ pub async fn listen<S: Service>(stack: Stack<'_>, server: &Server<'_, S>, slot: 
             continue;
         }
         let read_only = !may_write;
-        info!("slot {}: connection from {}{}", slot, peer, if read_only { " (read-only)" } else { "" });
+        debug!("slot {}: connection from {}{}", slot, peer, if read_only { " (read-only)" } else { "" });
         if let Some(victim) =
             server.slots().open(slot, max_connections, Instant::now(), peer.address.unwrap_or_default(), read_only)
         {
@@ -74,7 +74,7 @@ pub async fn listen<S: Service>(stack: Stack<'_>, server: &Server<'_, S>, slot: 
             info!("slot {}: all sessions busy, closing the idlest (slot {})", slot, victim);
         }
         match serve(&mut socket, server, slot).await {
-            Ok(()) => info!("slot {}: {} closed the connection", slot, peer),
+            Ok(()) => debug!("slot {}: {} closed the connection", slot, peer),
             Err(e) => info!("slot {}: closing {}: {}", slot, peer, e),
         }
         server.slots().close(slot);

@@ -112,7 +112,7 @@ async fn run<T: Read + Write, S: Service>(
                     // log macros evaluate their arguments only then).
                     let address = || be_u16(frame, ADDRESS).unwrap_or(0);
                     if let Some(exception) = exception {
-                        info!("slot {}: function {:#x} at {}: {}", slot, u8::from(function), address(), exception);
+                        debug!("slot {}: function {:#x} at {}: {}", slot, u8::from(function), address(), exception);
                     } else if write {
                         debug!("slot {}: function {:#x} wrote at {}", slot, u8::from(function), address());
                     }
