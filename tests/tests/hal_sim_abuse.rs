@@ -171,7 +171,7 @@ fn eight_clients_holding_half_frames_do_not_stop_a_ninth() {
 #[test]
 fn pipelined_bursts_larger_than_the_socket_buffers_are_answered_in_order() {
     // Per client: 400 requests, about 8 KiB in and 22 KiB out, against
-    // socket buffers of 1 KiB in and 512 bytes out (SOCKET_RX_LEN, SOCKET_TX_LEN).
+    // socket buffers of 512 bytes in and 512 bytes out (SOCKET_RX_LEN, SOCKET_TX_LEN).
     const CLIENTS: u16 = 3;
     const REQUESTS: u16 = 400;
     const SPAN: u16 = 40;

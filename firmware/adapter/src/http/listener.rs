@@ -4,10 +4,10 @@
 
 use embassy_net::Stack;
 use embassy_net::tcp::TcpSocket;
-use embassy_time::{Duration, with_timeout};
+use embassy_time::Duration;
 
 use super::{Backend, Buffers, Http, serve};
-use crate::server::{CLOSE_TIMEOUT, Peer};
+use crate::server::{Peer, close};
 
 /// Receive buffer of each HTTP socket (a request is read as it comes).
 pub const SOCKET_RX_LEN: usize = 512;
@@ -42,10 +42,7 @@ pub async fn listen<B: Backend>(stack: Stack<'_>, http: &Http<'_, B>, port: u16)
         if let Err(e) = served {
             debug!("http: {}: {}", peer, e);
         }
-        socket.close();
-        let _ = with_timeout(CLOSE_TIMEOUT, socket.flush()).await;
-        socket.abort();
-        let _ = with_timeout(CLOSE_TIMEOUT, socket.flush()).await;
+        close(&mut socket).await;
         drop(socket);
         if let Ok(Some(action)) = served {
             info!("http: {:?} requested by {}", action, peer);

@@ -20,9 +20,9 @@ use embassy_time::Duration;
 pub use access::{Access, AllowList, Network};
 pub use handler::{Context, Outcome, Policy};
 pub use identity::Identity;
-#[cfg(feature = "http")]
-pub(crate) use listener::Peer;
 pub use listener::{CLOSE_TIMEOUT, SOCKET_RX_LEN, SOCKET_TX_LEN, listen};
+#[cfg(feature = "http")]
+pub(crate) use listener::{Peer, close};
 pub use session::{Error, SESSION_BUFFER_LEN, serve};
 pub use slots::{Session, SlotId, Slots};
 
