@@ -3,7 +3,8 @@
 //! partition of the PSRAM's state file and it answers Modbus; an update
 //! armed in DFU the way `adapter::update` arms one (the image in DFU, the
 //! swap magic in the boot state) is swapped in, and the new image confirms
-//! itself once it serves; an empty ACTIVE is refused, not jumped into.
+//! itself once it serves, or is rolled back at the next boot when it has
+//! not; an empty ACTIVE is refused, not jumped into.
 //!
 //! Needs the bootloader and the image with `update`
 //! (`qemu::UPDATE_BUILD_COMMAND`), `qemu-system-arm` and `defmt-print`.
@@ -92,5 +93,51 @@ fn the_bootloader_does_not_jump_into_an_empty_active() {
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert_eq!(output.status.code(), Some(104), "{stderr}");
     assert!(stderr.contains("no image in ACTIVE"), "{stderr}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// An update that never confirms itself is rolled back: QEMU is stopped
+/// while the swapped-in image is still without an address, so before it
+/// can confirm (the reset the watchdog will make); at the next boot the
+/// bootloader reverts, and the image that runs says it was rolled back.
+#[test]
+fn an_update_that_does_not_confirm_is_rolled_back() {
+    let (bootloader, image) = qemu::update_images();
+    let dir = test_dir("update-rollback");
+    let state = dir.join("psram.state");
+    qemu::erased_state(&state).unwrap();
+    qemu::install(&image, &state, ACTIVE);
+    qemu::install(&image, &state, DFU);
+    let file = std::fs::OpenOptions::new().write(true).open(&state).unwrap();
+    file.write_all_at(&SWAP_MAGIC, u64::from(BOOTLOADER_STATE - PSRAM)).unwrap();
+    drop(file);
+
+    // No network: the image waits 5 s for DHCP before its fallback address,
+    // so it cannot confirm before QEMU is stopped half a second after the swap.
+    let stderr_path = dir.join("qemu.stderr");
+    let mut qemu = Command::new("timeout")
+        .args(["-k", "5", "60"])
+        .args(qemu::qemu_args(&bootloader, "none", &state))
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(&stderr_path).unwrap())
+        .spawn()
+        .unwrap();
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    while !std::fs::read_to_string(&stderr_path).unwrap().contains("boot state Swap") {
+        assert!(std::time::Instant::now() < deadline, "the bootloader did not swap");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    // SAFETY: kill has no memory effects; the pid is our child's (`timeout`,
+    // which passes SIGTERM on to QEMU).
+    unsafe { libc::kill(qemu.id() as i32, libc::SIGTERM) };
+    qemu.wait().unwrap();
+    assert_eq!(state_word(&state, BOOTLOADER_STATE), SWAP_MAGIC, "confirmed before the power cut");
+
+    // The next boot reverts; the image that runs knows it.
+    let stderr = boot_and_read(&bootloader, &image, &state, "update: boot state RolledBack");
+    assert!(stderr.contains("mps2-an386-boot: boot state Swap"), "{stderr}");
+    assert_eq!(state_word(&state, BOOTLOADER_STATE), [0xc0; 4], "no REVERT magic in the boot state");
     std::fs::remove_dir_all(&dir).unwrap();
 }
