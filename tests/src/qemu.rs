@@ -18,6 +18,9 @@
 //!   firmware falls back to 198.18.0.2/24 after 5 s).
 //! - [`Qemu::slirp_with_state`]: slirp on a state file the test keeps, so a
 //!   second boot finds what the first one saved.
+//! - [`Qemu::slirp_booting`]: the bootloader as the kernel, starting the
+//!   image with the `update` feature from the state file's ACTIVE partition
+//!   ([`update_images`], [`install`]).
 //!
 //! The board's PSRAM (QEMU's machine RAM, 16 MiB at `0x2100_0000`), where
 //! the firmware keeps its settings ([`SETTINGS`]), is a state file mapped
@@ -112,6 +115,91 @@ pub fn image() -> PathBuf {
         );
     }
     path
+}
+
+/// Overrides the bootloader under test.
+pub const BOOT_ELF_ENV: &str = "FIRMWARE_MPS2_BOOT_ELF";
+/// Overrides the image with the `update` feature under test.
+pub const UPDATE_ELF_ENV: &str = "FIRMWARE_MPS2_UPDATE_ELF";
+/// How the bootloader and the image with `update` are built: the image in
+/// a target directory of its own, so that it does not replace the plain
+/// image the other tests run ([`image`]).
+pub const UPDATE_BUILD_COMMAND: &str = "cargo build -p mps2-an386-boot --release --target thumbv7em-none-eabihf && \
+     CARGO_TARGET_DIR=target/update cargo build -p mps2-an386 --release --target thumbv7em-none-eabihf --features update";
+/// The partitions of the image with `update` (firmware/mps2-an386/memory-update.x).
+pub const BOOTLOADER_STATE: u32 = 0x2101_0000;
+pub const ACTIVE: u32 = 0x2102_0000;
+pub const ACTIVE_LEN: u32 = 512 * 1024;
+pub const DFU: u32 = 0x210A_0000;
+/// The PSRAM's first address: the state file's offset 0.
+pub const PSRAM: u32 = 0x2100_0000;
+
+/// The bootloader and the image with the `update` feature: the variables'
+/// files, or the builds of [`UPDATE_BUILD_COMMAND`], which must exist and be
+/// newer than their sources.
+pub fn update_images() -> (PathBuf, PathBuf) {
+    let target = std::env::var_os("CARGO_TARGET_DIR").map_or_else(|| workspace().join("target"), PathBuf::from);
+    let bootloader = built(
+        BOOT_ELF_ENV,
+        target.join("thumbv7em-none-eabihf/release/mps2-an386-boot"),
+        "firmware/mps2-an386-boot/Cargo.toml",
+    );
+    let image = built(
+        UPDATE_ELF_ENV,
+        target.join("update/thumbv7em-none-eabihf/release/mps2-an386"),
+        "firmware/mps2-an386/Cargo.toml",
+    );
+    (bootloader, image)
+}
+
+/// The file `env` names, or `path`, built after every source its dep-info lists.
+fn built(env: &str, path: PathBuf, manifest: &str) -> PathBuf {
+    if let Some(path) = std::env::var_os(env) {
+        let path = PathBuf::from(path);
+        assert!(path.is_file(), "{env}={} is not a file", path.display());
+        return path;
+    }
+    let built = modified(&path)
+        .unwrap_or_else(|| panic!("{} is missing: run `{UPDATE_BUILD_COMMAND}` first, or set {env}", path.display()));
+    let dep_info = std::fs::read_to_string(path.with_extension("d")).unwrap_or_default();
+    for source in dep_info_sources(&dep_info).into_iter().chain([workspace().join(manifest)]) {
+        let changed = modified(&source).is_some_and(|time| time > built);
+        assert!(!changed, "{} is older than {}: run `{UPDATE_BUILD_COMMAND}` again", path.display(), source.display());
+    }
+    path
+}
+
+/// Writes the image `elf` (linked at [`ACTIVE`]) into the state file
+/// `state` at the partition starting at `partition` ([`ACTIVE`], or
+/// [`DFU`] for an update the bootloader is to swap in): each loadable
+/// segment's bytes, at its place relative to ACTIVE's start. What the QEMU
+/// scripts do on a fresh state file, read from the ELF file's program headers.
+pub fn install(elf: &Path, state: &Path, partition: u32) {
+    use std::os::unix::fs::FileExt as _;
+    let bytes = std::fs::read(elf).unwrap_or_else(|e| panic!("{}: {e}", elf.display()));
+    let u16_at = |at: usize| u16::from_le_bytes(bytes[at..at + 2].try_into().unwrap());
+    let u32_at = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
+    assert_eq!(&bytes[..5], b"\x7fELF\x01", "{} is not a 32-bit ELF file", elf.display());
+    let (table, entry_len, entries) = (u32_at(0x1c) as usize, usize::from(u16_at(0x2a)), usize::from(u16_at(0x2c)));
+    let file = std::fs::OpenOptions::new().write(true).open(state).unwrap();
+    let mut written = 0;
+    for header in (0..entries).map(|i| table + i * entry_len) {
+        const PT_LOAD: u32 = 1;
+        let (kind, offset, address, len) =
+            (u32_at(header), u32_at(header + 4) as usize, u32_at(header + 12), u32_at(header + 16) as usize);
+        if kind != PT_LOAD || len == 0 {
+            continue;
+        }
+        assert!(
+            (ACTIVE..ACTIVE + ACTIVE_LEN).contains(&address),
+            "a segment of {} loads at {address:#x}, outside ACTIVE",
+            elf.display()
+        );
+        let at = u64::from(address - ACTIVE + partition - PSRAM);
+        file.write_all_at(&bytes[offset..offset + len], at).unwrap();
+        written += len;
+    }
+    assert!(written > 0, "{} has no loadable bytes", elf.display());
 }
 
 fn modified(path: &Path) -> Option<SystemTime> {
@@ -218,17 +306,26 @@ impl Qemu {
     /// Boots the image with slirp and a free port of 127.0.0.1 forwarded to
     /// 502, on a fresh (erased) state file.
     pub fn slirp() -> Self {
-        Self::slirp_on(None)
+        Self::slirp_on(None, None)
+    }
+
+    /// Boots `bootloader` as the kernel with slirp on the state file
+    /// `state`, into which the test [`install`]ed `image` (whose symbols
+    /// decode the log): the bootloader runs embassy-boot over the
+    /// partitions and starts the image in ACTIVE. The bootloader writes
+    /// what it did to QEMU's stderr ([`Qemu::stderr`]).
+    pub fn slirp_booting(bootloader: &Path, image: &Path, state: &Path) -> Self {
+        Self::slirp_on(Some(state), Some((bootloader, image)))
     }
 
     /// Boots the image as [`Qemu::slirp`] does, on the state file `state`
     /// (made erased if it is missing), which outlives this QEMU: boot again
     /// on it to see what the firmware saved.
     pub fn slirp_with_state(state: &Path) -> Self {
-        Self::slirp_on(Some(state))
+        Self::slirp_on(Some(state), None)
     }
 
-    fn slirp_on(state: Option<&Path>) -> Self {
+    fn slirp_on(state: Option<&Path>, images: Option<(&Path, &Path)>) -> Self {
         let mut last_error = String::new();
         for _ in 0..5 {
             let port = free_port();
@@ -237,7 +334,7 @@ impl Qemu {
                 continue;
             }
             let addr = SocketAddr::from((Ipv4Addr::LOCALHOST, port));
-            match Self::boot(Network::Slirp { port, http_port }, addr, state) {
+            match Self::boot(Network::Slirp { port, http_port }, addr, state, images) {
                 Ok(qemu) => return qemu,
                 // Another program took the port between our look and QEMU's bind.
                 Err(error) if error.contains("host forwarding") => last_error = error,
@@ -252,7 +349,7 @@ impl Qemu {
     pub fn tap() -> Self {
         let ns = Namespace::new().expect("a network namespace with a TAP");
         let ip: Ipv4Addr = DEVICE_IP.parse().expect("DEVICE_IP is an IPv4 address");
-        let mut qemu = Self::boot(Network::Tap(&ns), SocketAddr::from((ip, MODBUS_PORT)), None)
+        let mut qemu = Self::boot(Network::Tap(&ns), SocketAddr::from((ip, MODBUS_PORT)), None, None)
             .unwrap_or_else(|error| panic!("QEMU did not start:\n{error}"));
         qemu.ns = Some(ns);
         qemu
@@ -263,9 +360,22 @@ impl Qemu {
         self.ns.as_ref()
     }
 
-    fn boot(network: Network<'_>, addr: SocketAddr, state: Option<&Path>) -> Result<Self, String> {
+    /// Boots QEMU; `images`: the kernel and the image whose symbols decode
+    /// the log, when they differ (a bootloader), else [`image`] for both.
+    fn boot(
+        network: Network<'_>,
+        addr: SocketAddr,
+        state: Option<&Path>,
+        images: Option<(&Path, &Path)>,
+    ) -> Result<Self, String> {
         static NEXT: AtomicU32 = AtomicU32::new(0);
-        let elf = image();
+        let (kernel, elf) = match images {
+            Some((kernel, elf)) => (kernel.to_path_buf(), elf.to_path_buf()),
+            None => {
+                let elf = image();
+                (elf.clone(), elf)
+            }
+        };
         let dir = std::env::temp_dir().join(format!(
             "mbqemu-{}-{}",
             std::process::id(),
@@ -294,7 +404,7 @@ impl Qemu {
         let monitor = dir.join("monitor.sock");
         command
             .args(["-k", "5", &QEMU_TIMEOUT.as_secs().to_string()])
-            .args(qemu_args(&elf, &nic, &state))
+            .args(qemu_args(&kernel, &nic, &state))
             .arg("-monitor")
             .arg(format!("unix:{},server=on,wait=off", monitor.display()))
             .stdin(Stdio::null())
@@ -658,5 +768,19 @@ mod tests {
         let line = line.expect("a SETTINGS region in the MEMORY block");
         let fields: String = line.split(':').nth(1).unwrap().split_whitespace().collect();
         assert_eq!(fields, format!("ORIGIN={SETTINGS:#010x},LENGTH={}K", SETTINGS_LEN / 1024));
+    }
+
+    #[test]
+    fn the_partitions_are_where_the_update_image_s_memory_map_puts_them() {
+        let map = std::fs::read_to_string(workspace().join("firmware/mps2-an386/memory-update.x")).unwrap();
+        let origin = |name: &str| {
+            let line = map.lines().find(|l| l.trim_start().starts_with(&format!("{name} ")) && l.contains("ORIGIN"));
+            let fields: String = line.expect(name).split(':').nth(1).unwrap().split_whitespace().collect();
+            fields.to_lowercase()
+        };
+        assert_eq!(origin("ACTIVE"), format!("origin={ACTIVE:#010x},length={}k", ACTIVE_LEN / 1024));
+        assert!(origin("DFU").starts_with(&format!("origin={DFU:#010x},")));
+        assert!(origin("BOOTLOADER_STATE").starts_with(&format!("origin={BOOTLOADER_STATE:#010x},")));
+        assert!(origin("SETTINGS").starts_with(&format!("origin={PSRAM:#010x},")));
     }
 }

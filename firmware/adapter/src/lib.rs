@@ -12,6 +12,8 @@
 //! - `http` (feature `http`): the HTTP JSON API over the settings, the server and the device.
 //! - `link` (feature `robot-link`): the robot link, a client of the robot controller's own Modbus TCP server.
 //! - `mdns` (feature `mdns`): the mDNS responder: `NAME.local` and the device's services.
+//! - `update` (feature `update`): firmware update: a signed image streamed into
+//!   the DFU partition, checked, and the bootloader's swap armed; confirmation.
 //!
 //! The library is `no_std` and allocation-free; every size is a named constant.
 #![cfg_attr(not(test), no_std)]
@@ -38,6 +40,8 @@ pub mod server;
 pub mod settings;
 pub mod storage;
 pub mod text;
+#[cfg(feature = "update")]
+pub mod update;
 
 /// The wire codec this core speaks (its own crate: no map, no async).
 pub use modbus;

@@ -28,6 +28,8 @@ mod board;
 mod platform;
 mod runtime;
 mod systick;
+#[cfg(feature = "update")]
+mod update;
 
 use adapter::io::NoRobot;
 use board::{Leds, Mmio, RamInputs};
@@ -211,6 +213,11 @@ fn spawn_all(
     for slot in 0..SOCKET_POOL {
         spawner.spawn(modbus_task(stack, server, slot)?);
     }
+    #[cfg(feature = "update")]
+    match update::updater() {
+        Some(updater) => spawner.spawn(confirm_task(stack, updater)?),
+        None => defmt::error!("update: no updater: this image cannot confirm itself"),
+    }
     #[cfg(feature = "http")]
     {
         for _ in 0..adapter::http::MAX_HTTP_CONNECTIONS {
@@ -285,4 +292,11 @@ async fn http_task(stack: Stack<'static>, api: &'static Api) -> ! {
 #[embassy_executor::task]
 async fn locate_task() -> ! {
     platform::locate_loop().await
+}
+
+/// Confirms this image once it serves, when it runs on trial after a swap.
+#[cfg(feature = "update")]
+#[embassy_executor::task]
+async fn confirm_task(stack: Stack<'static>, updater: &'static update::SharedUpdater) {
+    update::confirm_when_serving(stack, updater).await
 }

@@ -1,0 +1,499 @@
+//! Firmware update (DEVICE.md section 5, docs/update.md): an update file
+//! ([`update_image`]'s format) taken in chunks as it arrives, its payload
+//! written into the DFU partition, its signature checked against the
+//! public key built into this firmware ([`PUBLIC_KEY`]), and only then the
+//! swap armed for embassy-boot's bootloader; the new image's confirmation
+//! after the swap; the boot state.
+//!
+//! The HTTP side drives one upload at a time:
+//!
+//! ```ignore
+//! updater.begin().await?;                  // refused while an update is armed or on trial
+//! while let Some(chunk) = body.next().await {
+//!     let progress = updater.write(chunk).await?;   // header checked first, then DFU written
+//! }
+//! let accepted = updater.finish().await?;  // length, signature; then the swap is armed
+//! platform.reboot();                       // the bootloader swaps, the new image runs on trial
+//! // ... in the new image, once the network is up and Modbus serves:
+//! updater.confirm().await?;                // else the next reset rolls back
+//! ```
+//!
+//! What is refused, and when (each leaves the running image and nothing
+//! armed; [`Error`] says why, [`Error::kind`] whose fault it is):
+//!
+//! | check | when | error |
+//! |---|---|---|
+//! | magic, format, header fields | the header's 128th byte, before anything is written | [`Error::Format`] |
+//! | board id is this board's | the same | [`Error::WrongBoard`] |
+//! | payload fits the ACTIVE partition | the same | [`Error::TooLarge`] |
+//! | no more bytes than the header says | as they come | [`Error::TooLong`] |
+//! | all the bytes the header says | [`Updater::finish`] | [`Error::CutOff`] |
+//! | the signature, over the header and the payload as read back from DFU | [`Updater::finish`], before arming | [`Error::Signature`] |
+//!
+//! The boot state is embassy-boot's (its [`FirmwareState`]: the magic word
+//! and the swap progress the bootloader reads). The payload goes into DFU
+//! through this module's own erase-as-you-go writer rather than
+//! `FirmwareUpdater::write_firmware`, whose record of the last sector it
+//! erased outlives an upload: an upload after one that failed within the
+//! first sector (any upload cut in its first 128 KiB on the NUCLEO) would
+//! not erase that sector again and write over the failed one's bytes. And the signature is checked here rather than
+//! by `verify_and_mark_updated`, which signs the payload alone (the board
+//! and version would not be signed) and asserts (panics) on a length.
+
+use core::fmt;
+
+use embassy_boot::{FirmwareState, FirmwareUpdaterError, State};
+use embedded_storage_async::nor_flash::{NorFlash, NorFlashError, NorFlashErrorKind};
+
+pub use update_image::{self as image, Board, FormatError, HEADER_LEN, Header, SignatureError, Version};
+
+// PUBLIC_KEY and DEVELOPMENT_KEY, from the key file build.rs read.
+include!(concat!(env!("OUT_DIR"), "/update_key.rs"));
+
+/// Payload bytes gathered before one write into DFU, and read back at a
+/// time to check the signature. A multiple of every flash word in use.
+pub const BLOCK_LEN: usize = 512;
+
+/// The longest state-partition word (embassy-boot's aligned buffer): the
+/// buffer [`Updater::new`] takes must hold the state flash's word.
+pub const MAX_STATE_WORD: usize = 32;
+
+/// What the bootloader's state partition says.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum BootState {
+    /// Nothing pending: the running image is confirmed (or was never swapped in).
+    Confirmed,
+    /// The running image was swapped in and is on trial: [`Updater::confirm`]
+    /// it, or the next reset rolls back to the previous one.
+    Trial,
+    /// This run armed a swap ([`Updater::finish`]): the next reset installs it.
+    Armed,
+    /// The bootloader rolled back: the image swapped in last did not confirm
+    /// itself, and the previous one runs again.
+    RolledBack,
+    /// embassy-boot's USB DFU mark (this device does not use it).
+    DfuDetach,
+}
+
+/// Why an upload, or a state change, was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Error {
+    /// Not an update file, or one whose header this firmware cannot read.
+    Format(FormatError),
+    /// The image is for another board.
+    WrongBoard(Board),
+    /// The payload is larger than the ACTIVE partition.
+    TooLarge {
+        /// The payload's length, from the header.
+        len: u32,
+        /// The largest payload this board takes.
+        max: u32,
+    },
+    /// More bytes came than the header announced.
+    TooLong,
+    /// The upload ended before the header's length: `received` of `expected`
+    /// bytes of the file (header included).
+    CutOff { received: u32, expected: u32 },
+    /// The signature does not verify against the built-in public key.
+    Signature(SignatureError),
+    /// `write` or `finish` without `begin`.
+    NotStarted,
+    /// An update is armed and installs at the next reset: no other upload
+    /// until then.
+    Armed,
+    /// The running image is on trial (swapped in, not yet confirmed): no
+    /// upload until it confirms itself.
+    OnTrial,
+    /// The flash failed.
+    Flash(NorFlashErrorKind),
+    /// The board's partitions do not fit the updater: the state buffer is
+    /// too short, the board id is not one, or the ACTIVE size is larger
+    /// than DFU.
+    Config,
+}
+
+/// Whose fault an [`Error`] is, for the HTTP side's status code.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ErrorKind {
+    /// The upload is not a good image for this device (a client error).
+    Image,
+    /// Not now: the device's state refuses an upload (a conflict).
+    State,
+    /// The device failed (a server error).
+    Device,
+}
+
+impl Error {
+    /// Whose fault the error is.
+    pub const fn kind(&self) -> ErrorKind {
+        match self {
+            Self::Format(_)
+            | Self::WrongBoard(_)
+            | Self::TooLarge { .. }
+            | Self::TooLong
+            | Self::CutOff { .. }
+            | Self::Signature(_) => ErrorKind::Image,
+            Self::NotStarted | Self::Armed | Self::OnTrial => ErrorKind::State,
+            Self::Flash(_) | Self::Config => ErrorKind::Device,
+        }
+    }
+}
+
+impl fmt::Display for Error {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Format(e) => write!(f, "not a valid update file: {e}"),
+            Self::WrongBoard(board) => write!(f, "the image is for the board {board}"),
+            Self::TooLarge { len, max } => write!(f, "the image is too large: {len} bytes, at most {max}"),
+            Self::TooLong => f.write_str("more bytes than the image's header says"),
+            Self::CutOff { received, expected } => write!(f, "the upload was cut off: {received} of {expected} bytes"),
+            Self::Signature(e) => write!(f, "the image's signature is not valid: {e}"),
+            Self::NotStarted => f.write_str("no upload in progress"),
+            Self::Armed => f.write_str("an update is armed and installs at the next reboot"),
+            Self::OnTrial => f.write_str("the running firmware is on trial and not yet confirmed"),
+            Self::Flash(kind) => write!(f, "flash error: {kind:?}"),
+            Self::Config => f.write_str("the update partitions are not configured right"),
+        }
+    }
+}
+
+impl core::error::Error for Error {}
+
+impl From<FirmwareUpdaterError> for Error {
+    fn from(error: FirmwareUpdaterError) -> Self {
+        match error {
+            FirmwareUpdaterError::Flash(kind) => Self::Flash(kind),
+            FirmwareUpdaterError::BadState => Self::OnTrial,
+            FirmwareUpdaterError::Signature(_) => Self::Signature(SignatureError::Mismatch),
+        }
+    }
+}
+
+fn flash_error(error: impl NorFlashError) -> Error {
+    Error::Flash(error.kind())
+}
+
+/// How far an upload is, in bytes of the update file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Progress {
+    /// Bytes taken so far (header included).
+    pub received: u32,
+    /// The file's length, once its header is in.
+    pub total: Option<u32>,
+}
+
+/// An update that passed every check and is armed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Accepted {
+    pub version: Version,
+    /// The payload's length in bytes.
+    pub len: u32,
+}
+
+/// What the updater checks images against.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Config<'a> {
+    /// This board's id (its crate's name): images for another are refused.
+    pub board: &'a str,
+    /// The ACTIVE partition's size: the largest payload.
+    pub max_len: u32,
+    /// The key images must be signed with.
+    pub public_key: [u8; image::PUBLIC_KEY_LEN],
+}
+
+impl<'a> Config<'a> {
+    /// Images for `board` of at most `max_len` bytes, signed for [`PUBLIC_KEY`].
+    pub const fn new(board: &'a str, max_len: u32) -> Self {
+        Self { board, max_len, public_key: PUBLIC_KEY }
+    }
+}
+
+/// An upload's receiving state (the payload's block is [`Updater`]'s).
+#[derive(Clone, Copy, Debug)]
+struct Receiving {
+    header: Header,
+    /// Payload bytes taken, the buffered ones included.
+    received: u32,
+    /// Payload bytes in the block, not yet written.
+    buffered: usize,
+    /// DFU bytes erased by this upload, from 0.
+    erased_to: u32,
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Upload {
+    Idle,
+    /// The header's first `len` bytes are in the block.
+    Header {
+        len: usize,
+    },
+    Payload(Receiving),
+    Failed(Error),
+    Armed(Accepted),
+}
+
+/// The device's side of a firmware update over the DFU partition `DFU`
+/// and the bootloader's state partition `STATE` (see the module's documentation).
+pub struct Updater<'d, DFU: NorFlash, STATE: NorFlash> {
+    dfu: DFU,
+    state: FirmwareState<'d, STATE>,
+    board: Board,
+    max_len: u32,
+    public_key: [u8; image::PUBLIC_KEY_LEN],
+    upload: Upload,
+    /// The header as it arrives, then the payload's next block; read-back space.
+    block: [u8; BLOCK_LEN],
+}
+
+impl<DFU: NorFlash, STATE: NorFlash> fmt::Debug for Updater<'_, DFU, STATE> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Updater")
+            .field("board", &self.board)
+            .field("max_len", &self.max_len)
+            .field("upload", &self.upload)
+            .finish_non_exhaustive()
+    }
+}
+
+impl<'d, DFU: NorFlash, STATE: NorFlash> Updater<'d, DFU, STATE> {
+    /// The updater over `dfu` and `state`, with `aligned` (at least the
+    /// state flash's word, [`MAX_STATE_WORD`] will do) as embassy-boot's
+    /// state buffer. [`Error::Config`] when the partitions do not fit.
+    pub fn new(dfu: DFU, state: STATE, aligned: &'d mut [u8], config: Config<'_>) -> Result<Self, Error> {
+        const {
+            assert!(BLOCK_LEN.is_multiple_of(DFU::WRITE_SIZE) && BLOCK_LEN.is_multiple_of(DFU::READ_SIZE));
+            assert!(BLOCK_LEN >= HEADER_LEN);
+        }
+        let word = STATE::WRITE_SIZE.max(STATE::READ_SIZE);
+        let aligned = aligned.get_mut(..word).ok_or(Error::Config)?;
+        let board = Board::new(config.board).ok_or(Error::Config)?;
+        if usize::try_from(config.max_len).map_or(true, |max| max > dfu.capacity()) {
+            return Err(Error::Config);
+        }
+        Ok(Self {
+            dfu,
+            state: FirmwareState::new(state, aligned),
+            board,
+            max_len: config.max_len,
+            public_key: config.public_key,
+            upload: Upload::Idle,
+            block: [0xff; BLOCK_LEN],
+        })
+    }
+
+    /// What the state partition says (see [`BootState`]).
+    pub async fn boot_state(&mut self) -> Result<BootState, Error> {
+        Ok(match self.state.get_state().await? {
+            State::Boot => BootState::Confirmed,
+            State::Swap if matches!(self.upload, Upload::Armed(_)) => BootState::Armed,
+            State::Swap => BootState::Trial,
+            State::Revert => BootState::RolledBack,
+            State::DfuDetach => BootState::DfuDetach,
+        })
+    }
+
+    /// Confirms the running image when it is on trial (embassy-boot's
+    /// `mark_booted`): the bootloader keeps it from now on. `Ok(true)` when
+    /// it was on trial and is confirmed now; `Ok(false)` when there was
+    /// nothing to confirm (it writes nothing then, and a swap this run
+    /// armed stays armed).
+    pub async fn confirm(&mut self) -> Result<bool, Error> {
+        if self.boot_state().await? != BootState::Trial {
+            return Ok(false);
+        }
+        self.state.mark_booted().await?;
+        Ok(true)
+    }
+
+    /// Starts an upload (a running one is dropped). Writes nothing.
+    /// Refused while an update is armed ([`Error::Armed`]) or the running
+    /// image is on trial ([`Error::OnTrial`]).
+    pub async fn begin(&mut self) -> Result<(), Error> {
+        match self.boot_state().await? {
+            BootState::Armed => return Err(Error::Armed),
+            BootState::Trial => return Err(Error::OnTrial),
+            BootState::Confirmed | BootState::RolledBack | BootState::DfuDetach => {}
+        }
+        self.upload = Upload::Header { len: 0 };
+        Ok(())
+    }
+
+    /// Drops the upload in progress; nothing is armed.
+    pub fn abort(&mut self) {
+        if !matches!(self.upload, Upload::Armed(_)) {
+            self.upload = Upload::Idle;
+        }
+    }
+
+    /// The update this run armed, if any: it installs at the next reset.
+    pub fn armed(&self) -> Option<Accepted> {
+        match self.upload {
+            Upload::Armed(accepted) => Some(accepted),
+            _ => None,
+        }
+    }
+
+    /// How far the upload is (`None`: none in progress).
+    pub fn progress(&self) -> Option<Progress> {
+        match self.upload {
+            Upload::Idle | Upload::Failed(_) | Upload::Armed(_) => None,
+            Upload::Header { len } => Some(Progress { received: len_u32(len), total: None }),
+            Upload::Payload(r) => Some(Progress {
+                received: r.received.saturating_add(len_u32(HEADER_LEN)),
+                total: Some(r.header.payload_len.saturating_add(len_u32(HEADER_LEN))),
+            }),
+        }
+    }
+
+    /// Takes the upload's next bytes. The header is checked as soon as it
+    /// is in, before anything is written; then the payload goes into DFU
+    /// a block at a time. An error ends the upload: every later call
+    /// returns it, until [`Self::begin`].
+    pub async fn write(&mut self, chunk: &[u8]) -> Result<Progress, Error> {
+        let taken = self.take(chunk).await;
+        if let Err(error) = taken {
+            self.upload = Upload::Failed(error);
+        }
+        taken
+    }
+
+    /// Ends the upload: every byte the header announced must have come;
+    /// the payload is read back from DFU and the signature checked over the
+    /// header and it; only then is the swap armed (embassy-boot's
+    /// `mark_updated`). On any error nothing is armed.
+    pub async fn finish(&mut self) -> Result<Accepted, Error> {
+        let finished = self.check_and_arm().await;
+        self.upload = match finished {
+            Ok(accepted) => Upload::Armed(accepted),
+            Err(error) => Upload::Failed(error),
+        };
+        finished
+    }
+
+    async fn take(&mut self, mut chunk: &[u8]) -> Result<Progress, Error> {
+        loop {
+            match self.upload {
+                Upload::Idle => return Err(Error::NotStarted),
+                Upload::Failed(error) => return Err(error),
+                Upload::Armed(_) => return Err(Error::Armed),
+                _ if chunk.is_empty() => break,
+                Upload::Header { len } => {
+                    let (head, rest) = chunk.split_at(chunk.len().min(HEADER_LEN.saturating_sub(len)));
+                    let end = len + head.len();
+                    self.block.get_mut(len..end).ok_or(Error::Config)?.copy_from_slice(head);
+                    chunk = rest;
+                    self.upload = if end < HEADER_LEN {
+                        Upload::Header { len: end }
+                    } else {
+                        let header = self.check_header()?;
+                        Upload::Payload(Receiving { header, received: 0, buffered: 0, erased_to: 0 })
+                    };
+                }
+                Upload::Payload(mut r) => {
+                    let left = r.header.payload_len.saturating_sub(r.received);
+                    if u32::try_from(chunk.len()).map_or(true, |len| len > left) {
+                        return Err(Error::TooLong);
+                    }
+                    let (part, rest) = chunk.split_at(chunk.len().min(BLOCK_LEN.saturating_sub(r.buffered)));
+                    let end = r.buffered + part.len();
+                    self.block.get_mut(r.buffered..end).ok_or(Error::Config)?.copy_from_slice(part);
+                    r.buffered = end;
+                    r.received = r.received.saturating_add(len_u32(part.len()));
+                    chunk = rest;
+                    if r.buffered == BLOCK_LEN {
+                        self.flush(&mut r).await?;
+                    }
+                    self.upload = Upload::Payload(r);
+                }
+            }
+        }
+        self.progress().ok_or(Error::NotStarted)
+    }
+
+    /// The header in the block, checked against this board.
+    fn check_header(&self) -> Result<Header, Error> {
+        let header = Header::parse(&self.block).map_err(Error::Format)?;
+        if header.board != self.board {
+            return Err(Error::WrongBoard(header.board));
+        }
+        if header.payload_len > self.max_len {
+            return Err(Error::TooLarge { len: header.payload_len, max: self.max_len });
+        }
+        Ok(header)
+    }
+
+    /// Writes the buffered payload bytes (padded with 0xFF to a flash word)
+    /// at their place in DFU, erasing the sectors they reach first.
+    async fn flush(&mut self, r: &mut Receiving) -> Result<(), Error> {
+        let offset = r.received.saturating_sub(len_u32(r.buffered));
+        let len = r.buffered.next_multiple_of(DFU::WRITE_SIZE);
+        let data = self.block.get_mut(..len).ok_or(Error::Config)?;
+        data.get_mut(r.buffered..).unwrap_or_default().fill(0xff);
+        let end = offset.checked_add(len_u32(len)).ok_or(Error::TooLong)?;
+        let sector = len_u32(DFU::ERASE_SIZE);
+        while r.erased_to < end {
+            let next = r.erased_to.checked_add(sector).ok_or(Error::TooLong)?;
+            self.dfu.erase(r.erased_to, next).await.map_err(flash_error)?;
+            r.erased_to = next;
+        }
+        self.dfu.write(offset, data).await.map_err(flash_error)?;
+        r.buffered = 0;
+        Ok(())
+    }
+
+    async fn check_and_arm(&mut self) -> Result<Accepted, Error> {
+        let mut r = match self.upload {
+            Upload::Idle => return Err(Error::NotStarted),
+            Upload::Failed(error) => return Err(error),
+            Upload::Armed(_) => return Err(Error::Armed),
+            Upload::Header { len } => {
+                return Err(Error::CutOff { received: len_u32(len), expected: len_u32(HEADER_LEN) });
+            }
+            Upload::Payload(r) => r,
+        };
+        let header = r.header;
+        if r.received < header.payload_len {
+            let head = len_u32(HEADER_LEN);
+            return Err(Error::CutOff {
+                received: r.received.saturating_add(head),
+                expected: header.payload_len.saturating_add(head),
+            });
+        }
+        if r.buffered > 0 {
+            self.flush(&mut r).await?;
+        }
+        let digest = self.digest_dfu(&header).await?;
+        header.verify(&self.public_key, &digest).map_err(Error::Signature)?;
+        self.state.mark_updated().await?;
+        Ok(Accepted { version: header.version, len: header.payload_len })
+    }
+
+    /// The image's digest over the header and the payload as DFU holds it.
+    async fn digest_dfu(&mut self, header: &Header) -> Result<[u8; image::DIGEST_LEN], Error> {
+        let mut digest = header.digest();
+        let mut offset = 0u32;
+        while offset < header.payload_len {
+            let len = usize::try_from(header.payload_len - offset).map_or(BLOCK_LEN, |left| left.min(BLOCK_LEN));
+            let read = self.block.get_mut(..len.next_multiple_of(DFU::READ_SIZE)).ok_or(Error::Config)?;
+            self.dfu.read(offset, read).await.map_err(flash_error)?;
+            digest.update(read.get(..len).unwrap_or_default());
+            offset = offset.saturating_add(len_u32(len));
+            // Hashing a large image takes a while: let the other tasks run.
+            embassy_futures::yield_now().await;
+        }
+        Ok(digest.finalize())
+    }
+}
+
+/// A length within a buffer, as `u32` (saturating: it never is larger).
+fn len_u32(len: usize) -> u32 {
+    u32::try_from(len).unwrap_or(u32::MAX)
+}
+
+#[cfg(test)]
+mod tests;
