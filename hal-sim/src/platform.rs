@@ -15,8 +15,8 @@ use std::ffi::{CString, OsString};
 use std::io::Read as _;
 use std::os::unix::ffi::OsStrExt as _;
 
-use adapter::http::{Controller, NetworkStatus, Platform, RobotLinkStatus, RobotSource};
-use adapter::settings::{NetMode, RobotSettings};
+use adapter::http::{Controller, NetworkStatus, Platform, RobotSource};
+use adapter::settings::NetMode;
 use embassy_net::Stack;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
@@ -106,16 +106,12 @@ impl Platform for SimPlatform {
         salt
     }
 
-    fn robot_source(&self) -> RobotSource {
-        if crate::ROBOT_LINK.is_set() { RobotSource::Link } else { RobotSource::Sim }
+    fn local_robot(&self) -> RobotSource {
+        RobotSource::Sim
     }
 
-    fn robot_link(&self) -> Option<RobotLinkStatus> {
-        crate::ROBOT_LINK.http_status()
-    }
-
-    fn apply_robot(&self, robot: &RobotSettings) {
-        crate::ROBOT_LINK.configure(robot);
+    fn link(&self) -> Option<&adapter::link::Link> {
+        Some(&crate::ROBOT_LINK)
     }
 }
 

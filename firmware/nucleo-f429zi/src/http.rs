@@ -140,17 +140,7 @@ impl Platform for Nucleo {
     }
 
     #[cfg(feature = "robot-link")]
-    fn robot_source(&self) -> adapter::http::RobotSource {
-        if crate::ROBOT_LINK.is_set() { adapter::http::RobotSource::Link } else { adapter::http::RobotSource::None }
-    }
-
-    #[cfg(feature = "robot-link")]
-    fn robot_link(&self) -> Option<adapter::http::RobotLinkStatus> {
-        crate::ROBOT_LINK.http_status()
-    }
-
-    #[cfg(feature = "robot-link")]
-    fn apply_robot(&self, robot: &adapter::settings::RobotSettings) {
-        crate::ROBOT_LINK.configure(robot);
+    fn link(&self) -> Option<&adapter::link::Link> {
+        Some(&crate::ROBOT_LINK)
     }
 }

@@ -17,7 +17,7 @@ use embedded_storage_async::nor_flash::NorFlash;
 use super::backend::{Backend, NetworkStatus, Refusal, RobotLinkStatus, RobotSource};
 use crate::device::Device;
 use crate::server::Server;
-use crate::settings::{RobotSettings, Settings};
+use crate::settings::Settings;
 use crate::storage::{Loaded, Password, PasswordHash, StorageStatus, Store};
 
 /// What only the program around the adapter knows or can do.
@@ -42,18 +42,16 @@ pub trait Platform {
     fn reset_reason(&self) -> Option<&'static str> {
         None
     }
-    /// Where the robot's points come from.
-    fn robot_source(&self) -> RobotSource {
+    /// Where the robot's points come from while no robot link is set: none
+    /// on the boards, the simulated robot in hal-sim.
+    fn local_robot(&self) -> RobotSource {
         RobotSource::None
     }
-    /// The robot link's health (`None`: no link set, or none built).
-    fn robot_link(&self) -> Option<RobotLinkStatus> {
+    /// The robot link the program runs (feature `robot-link`): it takes the
+    /// `robot` settings at once, and its health is in the status.
+    #[cfg(feature = "robot-link")]
+    fn link(&self) -> Option<&crate::link::Link> {
         None
-    }
-    /// Puts the `robot` settings in force (the robot link's target and
-    /// period, which apply at once); a program without a link ignores them.
-    fn apply_robot(&self, robot: &RobotSettings) {
-        let _ = robot;
     }
 }
 
@@ -120,7 +118,10 @@ impl<F: NorFlash, P: Platform> Backend for Controller<'_, F, P> {
         let port = self.server.with_config(|config| config.port);
         self.server.set_config(crate::server::Config { port, ..settings.server_config(self.platform.mac()) });
         self.server.service().set_watchdog(settings.watchdog());
-        self.platform.apply_robot(&settings.robot);
+        #[cfg(feature = "robot-link")]
+        if let Some(link) = self.platform.link() {
+            link.configure(&settings.robot);
+        }
         info!("settings: saved and applied");
         Ok(before.reboot_required(settings))
     }
@@ -186,11 +187,18 @@ impl<F: NorFlash, P: Platform> Backend for Controller<'_, F, P> {
     }
 
     fn robot_source(&self) -> RobotSource {
-        self.platform.robot_source()
+        #[cfg(feature = "robot-link")]
+        if self.platform.link().is_some_and(crate::link::Link::is_set) {
+            return RobotSource::Link;
+        }
+        self.platform.local_robot()
     }
 
     fn robot_link(&self) -> Option<RobotLinkStatus> {
-        self.platform.robot_link()
+        #[cfg(feature = "robot-link")]
+        return self.platform.link().and_then(crate::link::Link::http_status);
+        #[cfg(not(feature = "robot-link"))]
+        None
     }
 
     fn storage(&self) -> Option<StorageStatus> {
@@ -222,11 +230,12 @@ mod tests {
     const RANGE: Range<u32> = 0..(2 * PAGE) as u32;
     type Flash = RuleFlash<'static, 4, PAGE>;
 
-    /// A platform that remembers whether it was told to reboot.
+    /// A platform that remembers whether it was told to reboot, with a robot link.
     #[derive(Default)]
     struct TestPlatform {
         reboots: Cell<u32>,
-        robot: Cell<Option<RobotSettings>>,
+        #[cfg(feature = "robot-link")]
+        link: crate::link::Link,
     }
 
     impl Platform for TestPlatform {
@@ -246,8 +255,9 @@ mod tests {
         fn salt(&self) -> [u8; 16] {
             [9; 16]
         }
-        fn apply_robot(&self, robot: &RobotSettings) {
-            self.robot.set(Some(*robot));
+        #[cfg(feature = "robot-link")]
+        fn link(&self) -> Option<&crate::link::Link> {
+            Some(&self.link)
         }
     }
 
@@ -298,15 +308,20 @@ mod tests {
         assert_eq!(controller(memory).settings(), changed);
     }
 
+    #[cfg(feature = "robot-link")]
     #[test]
-    fn the_robot_settings_reach_the_platform_at_once() {
+    fn the_robot_settings_reach_the_link_at_once() {
         let _clock = Clock::take();
         let control = controller(memory());
+        assert_eq!(control.robot_source(), RobotSource::None, "no link set: the platform's own source");
+        assert_eq!(control.robot_link(), None);
         let mut changed = control.settings();
         changed.set(Field::RobotLinkAddress, "198.18.0.1:1502/2").unwrap();
         changed.set(Field::RobotPollInterval, "250").unwrap();
         assert_eq!(block_on(control.apply(&changed)), Ok(false), "no reboot");
-        assert_eq!(control.platform().robot.get(), Some(changed.robot));
+        assert_eq!(control.platform().link.status().target, changed.robot.link);
+        assert_eq!(control.robot_source(), RobotSource::Link);
+        assert_eq!(control.robot_link().map(|link| link.connected), Some(false), "set, not up yet");
     }
 
     #[test]
