@@ -31,40 +31,5 @@ fn main() -> Result<(), String> {
     std::fs::write(format!("{out}/memory.rs"), constants).map_err(|e| format!("memory.rs: {e}"))
 }
 
-/// ORIGIN and LENGTH of the MEMORY region `name`, from its line
-/// `NAME [(attributes)] : ORIGIN = 0x..., LENGTH = 32K` (hexadecimal or decimal, with an
-/// optional K or M).
-fn region(map: &str, name: &str) -> Option<(u32, u32)> {
-    map.lines().find_map(|line| {
-        let (region, fields) = line.split_once(':')?;
-        if region.split_whitespace().next() != Some(name) {
-            return None;
-        }
-        let (mut origin, mut length) = (None, None);
-        for field in fields.split(',') {
-            let (key, value) = field.split_once('=')?;
-            match key.trim() {
-                "ORIGIN" | "org" | "o" => origin = number(value),
-                "LENGTH" | "len" | "l" => length = number(value),
-                _ => return None,
-            }
-        }
-        Some((origin?, length?))
-    })
-}
-
-fn number(text: &str) -> Option<u32> {
-    let text = text.trim();
-    let (digits, scale) = match text.strip_suffix('K') {
-        Some(digits) => (digits, 1 << 10),
-        None => match text.strip_suffix('M') {
-            Some(digits) => (digits, 1 << 20),
-            None => (text, 1),
-        },
-    };
-    let value = match digits.strip_prefix("0x").or_else(|| digits.strip_prefix("0X")) {
-        Some(hex) => u32::from_str_radix(hex, 16),
-        None => digits.parse(),
-    };
-    value.ok()?.checked_mul(scale)
-}
+// region() and number(): reading a MEMORY region's line.
+include!("../memory_x.rs");
