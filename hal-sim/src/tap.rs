@@ -225,22 +225,14 @@ impl embassy_net_driver::TxToken for TxToken<'_> {
 mod tests {
     use std::os::unix::net::UnixDatagram;
     use std::sync::Arc;
-    use std::sync::atomic::{AtomicUsize, Ordering};
-    use std::task::{Wake, Waker};
+    use std::sync::atomic::Ordering;
+    use std::task::Waker;
 
     use embassy_net_driver::RxToken as _;
 
     use super::*;
 
-    /// Counts its wakes.
-    #[derive(Default)]
-    struct Count(AtomicUsize);
-
-    impl Wake for Count {
-        fn wake(self: Arc<Self>) {
-            self.0.fetch_add(1, Ordering::SeqCst);
-        }
-    }
+    use crate::runtime::WakeCount as Count;
 
     /// The frame `receive` gives, if any.
     fn receive(device: &mut TunTapDevice, cx: &mut Context) -> Option<Vec<u8>> {

@@ -60,6 +60,18 @@ pub fn next_round_for_test() {
     next_round();
 }
 
+/// A waker that counts its wakes, for tests of what wakes the loop.
+#[cfg(test)]
+#[derive(Default)]
+pub struct WakeCount(pub std::sync::atomic::AtomicUsize);
+
+#[cfg(test)]
+impl std::task::Wake for WakeCount {
+    fn wake(self: std::sync::Arc<Self>) {
+        self.0.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+    }
+}
+
 /// The loop: a single-threaded executor, as `embassy_executor::Executor` on
 /// std, that sleeps in `ppoll(2)` (see the module's documentation).
 pub struct Executor {
