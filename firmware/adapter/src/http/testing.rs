@@ -40,6 +40,9 @@ pub struct TestBackend {
     /// The next update file is refused so, once received whole.
     #[cfg(feature = "update")]
     pub firmware_refusal: Cell<Option<super::FirmwareRefusal>>,
+    /// The largest update file taken ([`TEST_FIRMWARE_CAPACITY`] unless changed).
+    #[cfg(feature = "update")]
+    pub firmware_capacity: Cell<usize>,
 }
 
 /// The largest update file the test backend takes.
@@ -72,6 +75,8 @@ impl TestBackend {
             firmware_chunks: RefCell::new(Vec::new()),
             #[cfg(feature = "update")]
             firmware_refusal: Cell::new(None),
+            #[cfg(feature = "update")]
+            firmware_capacity: Cell::new(TEST_FIRMWARE_CAPACITY),
         }
     }
 }
@@ -143,7 +148,7 @@ impl Backend for TestBackend {
 
     #[cfg(feature = "update")]
     fn firmware_capacity(&self) -> usize {
-        TEST_FIRMWARE_CAPACITY
+        self.firmware_capacity.get()
     }
 
     #[cfg(feature = "update")]

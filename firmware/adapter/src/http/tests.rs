@@ -732,6 +732,18 @@ mod firmware {
     }
 
     #[test]
+    fn a_device_that_takes_no_updates_says_so() {
+        let clock = Clock::take();
+        let http = api();
+        http.backend().firmware_capacity.set(0);
+        let (response, result) = exchange(http, &clock, Some(CLIENT), &upload("", &file(10)));
+        let response = response.unwrap();
+        assert_eq!((response.status, result), (501, Ok(None)));
+        assert_eq!(response.json(), json!({"errors": {"firmware": "this device takes no updates"}}));
+        assert!(http.backend().firmware_chunks.borrow().is_empty());
+    }
+
+    #[test]
     fn a_refused_or_cut_off_file_changes_nothing() {
         let clock = Clock::take();
         let http = api();
