@@ -141,3 +141,119 @@ fn an_update_that_does_not_confirm_is_rolled_back() {
     assert_eq!(state_word(&state, BOOTLOADER_STATE), [0xc0; 4], "no REVERT magic in the boot state");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// The image's flat binary for ACTIVE: its loadable segments at their
+/// offsets from ACTIVE, gaps erased (what `llvm-objcopy -O binary` makes).
+fn flat_binary(elf: &Path) -> Vec<u8> {
+    let bytes = std::fs::read(elf).unwrap();
+    let u16_at = |at: usize| u16::from_le_bytes(bytes[at..at + 2].try_into().unwrap());
+    let u32_at = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
+    let (table, entry_len, entries) = (u32_at(0x1c) as usize, usize::from(u16_at(0x2a)), usize::from(u16_at(0x2c)));
+    let mut flat = Vec::new();
+    for header in (0..entries).map(|i| table + i * entry_len) {
+        let (kind, offset, address, len) =
+            (u32_at(header), u32_at(header + 4) as usize, u32_at(header + 12), u32_at(header + 16) as usize);
+        if kind != 1 || len == 0 {
+            continue;
+        }
+        let at = (address - ACTIVE) as usize;
+        if flat.len() < at + len {
+            flat.resize(at + len, 0xff);
+        }
+        flat[at..at + len].copy_from_slice(&bytes[offset..offset + len]);
+    }
+    flat
+}
+
+/// `payload` signed for mps2-an386 with the development key, as an update file.
+fn signed(dir: &Path, payload: &[u8], version: &str) -> Vec<u8> {
+    let bin = dir.join("app.bin");
+    let out = dir.join("app.update");
+    std::fs::write(&bin, payload).unwrap();
+    let root = qemu::workspace();
+    let status = Command::new(root.join("scripts/sign-firmware"))
+        .arg("--key")
+        .arg(root.join("keys/update-dev.key"))
+        .args(["--board", "mps2-an386", "--version", version])
+        .arg(&bin)
+        .arg("-o")
+        .arg(&out)
+        .status()
+        .unwrap();
+    assert!(status.success(), "sign-firmware failed");
+    std::fs::read(out).unwrap()
+}
+
+/// `POST /api/firmware` with `file`: the status code and the body.
+fn upload(addr: std::net::SocketAddr, file: &[u8]) -> (u16, String) {
+    use std::io::{Read as _, Write as _};
+    let mut stream = std::net::TcpStream::connect(addr).unwrap();
+    stream.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
+    let head = format!(
+        "POST /api/firmware HTTP/1.1\r\nHost: mbio\r\nContent-Type: application/octet-stream\r\n\
+         Content-Length: {}\r\n\r\n",
+        file.len()
+    );
+    stream.write_all(head.as_bytes()).unwrap();
+    stream.write_all(file).unwrap();
+    let mut response = Vec::new();
+    if let Err(e) = stream.read_to_end(&mut response) {
+        return (0, format!("no response: {e}"));
+    }
+    let text = String::from_utf8_lossy(&response).into_owned();
+    let status = text.get(9..12).and_then(|code| code.parse().ok()).unwrap_or(0);
+    let body = text.split_once("\r\n\r\n").map_or(String::new(), |(_, body)| body.to_string());
+    (status, body)
+}
+
+/// The whole path through the API: a badly signed file is refused and
+/// nothing is armed; a good one is taken (202), the device reboots, the
+/// bootloader swaps it in and the new image confirms itself once it serves.
+#[test]
+fn an_update_uploaded_through_the_api_is_checked_swapped_in_and_confirmed() {
+    let (bootloader, image) = qemu::update_images();
+    let dir = test_dir("update-upload");
+    let state = dir.join("psram.state");
+    qemu::erased_state(&state).unwrap();
+    qemu::install(&image, &state, ACTIVE);
+    let payload = flat_binary(&image);
+    let file = signed(&dir, &payload, "0.1.0");
+    let mut forged = file.clone();
+    let last = forged.len() - 1;
+    forged[last] ^= 0x01;
+
+    let qemu = Qemu::slirp_booting(&bootloader, &image, &state);
+    qemu.wait_for_log("update: boot state Confirmed", Duration::from_secs(30));
+    // The network in place (a connection made before DHCP's address is
+    // reset when it comes).
+    qemu.wait_for_log("Modbus TCP server at", Duration::from_secs(30));
+    let (status, body) = upload(qemu.http_addr(), &forged);
+    assert_eq!(status, 400, "{body}");
+    assert!(body.contains("signature"), "{body}");
+    assert_ne!(state_word(&state, BOOTLOADER_STATE), SWAP_MAGIC, "a forged image armed");
+
+    let (status, body) = upload(qemu.http_addr(), &file);
+    assert_eq!(status, 202, "{body}\n{}", qemu.log());
+    assert!(body.contains("\"rebooting\":true"), "{body}");
+    // The reboot: the bootloader swaps, the image confirms once it serves.
+    qemu.wait_for_log("update: this image is confirmed", Duration::from_secs(60));
+    let stderr = qemu.stderr();
+    assert!(stderr.contains("mps2-an386-boot: boot state Swap"), "{stderr}");
+    assert_eq!(state_word(&state, BOOTLOADER_STATE), BOOT_MAGIC, "the confirmation is not in the boot state");
+    // A connection made while the new image's network comes up may be
+    // reset under it: a few tries.
+    let registers = qemu.run(|| async {
+        for _ in 0..10 {
+            let mut ctx = qemu.connect().await;
+            match ctx.read_holding_registers(ROBOT_REGISTERS, 4).await {
+                Ok(Ok(registers)) => return registers,
+                other => eprintln!("read after the swap: {other:?}; again"),
+            }
+            tokio::time::sleep(Duration::from_millis(500)).await;
+        }
+        panic!("the new image does not answer Modbus");
+    });
+    assert_eq!(registers, NO_ROBOT, "the new image serves Modbus");
+    qemu.finish();
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -9,13 +9,14 @@
 //! never gets there, the next reset rolls back. (The watchdog that makes
 //! that reset, and the HTTP upload, are still to come.)
 
-use core::sync::atomic::{AtomicBool, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use adapter::storage::flash::RuleFlash;
 use adapter::update::{self, Config, Updater};
 use embassy_net::Stack;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::mutex::Mutex;
+use embassy_sync::once_lock::OnceLock;
 use static_cell::StaticCell;
 
 /// DFU and the boot state: PSRAM under NOR flash rules, as the settings.
@@ -78,9 +79,25 @@ pub fn updater() -> Option<&'static SharedUpdater> {
     if update::DEVELOPMENT_KEY {
         defmt::warn!("update: the DEVELOPMENT key is built in (keys/update-dev.pub): anyone can sign an update");
     }
-    static UPDATER: StaticCell<SharedUpdater> = StaticCell::new();
-    UPDATER.try_init(Mutex::new(updater)).map(|updater| &*updater)
+    CAPACITY.store(updater.capacity(), Ordering::Relaxed);
+    UPDATER.init(Mutex::new(updater)).ok()?;
+    UPDATER.try_get()
 }
+
+/// The updater, once [`updater`] has made it: the HTTP upload's too.
+static UPDATER: OnceLock<SharedUpdater> = OnceLock::new();
+
+/// The updater [`updater`] made, if it has.
+pub fn shared() -> Option<&'static SharedUpdater> {
+    UPDATER.try_get()
+}
+
+/// The largest update file the updater takes (0 before it is made).
+pub fn capacity() -> usize {
+    CAPACITY.load(Ordering::Relaxed)
+}
+
+static CAPACITY: AtomicUsize = AtomicUsize::new(0);
 
 /// Logs the boot state, then confirms an image on trial once the network
 /// has its address (the Modbus listeners are spawned before this runs).

@@ -21,6 +21,7 @@ use crate::settings::Settings;
 use crate::storage::{Loaded, Password, PasswordHash, StorageStatus, Store};
 
 /// What only the program around the adapter knows or can do.
+#[allow(async_fn_in_trait, reason = "the executor is single-threaded: no future needs to be Send")]
 pub trait Platform {
     /// The board, as `/api/status` names it (`nucleo-f429zi`).
     fn model(&self) -> &'static str;
@@ -52,6 +53,22 @@ pub trait Platform {
     #[cfg(feature = "robot-link")]
     fn link(&self) -> Option<&crate::link::Link> {
         None
+    }
+    /// The largest update file the device takes; 0: none (feature `update`).
+    #[cfg(feature = "update")]
+    fn firmware_capacity(&self) -> usize {
+        0
+    }
+    /// Takes an update file from `body` and arms the swap to it
+    /// ([`super::Backend::receive_firmware`]); a board feeds its updater
+    /// with [`super::feed_update`].
+    #[cfg(feature = "update")]
+    async fn receive_firmware<R: embedded_io_async::Read>(
+        &self,
+        body: &mut super::request::Stream<'_, R>,
+    ) -> Result<crate::io::Version, super::FirmwareRefusal> {
+        let _ = body;
+        Err(super::FirmwareRefusal::Unsupported)
     }
 }
 
@@ -203,6 +220,19 @@ impl<F: NorFlash, P: Platform> Backend for Controller<'_, F, P> {
 
     fn storage(&self) -> Option<StorageStatus> {
         Some(self.state.lock(|state| state.borrow().storage))
+    }
+
+    #[cfg(feature = "update")]
+    fn firmware_capacity(&self) -> usize {
+        self.platform.firmware_capacity()
+    }
+
+    #[cfg(feature = "update")]
+    async fn receive_firmware<R: embedded_io_async::Read>(
+        &self,
+        body: &mut super::request::Stream<'_, R>,
+    ) -> Result<crate::io::Version, super::FirmwareRefusal> {
+        self.platform.receive_firmware(body).await
     }
 }
 

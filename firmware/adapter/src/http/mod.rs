@@ -268,6 +268,57 @@ fn refusal(out: &mut Out<'_>, error: Error) -> api::Reply {
     api::Reply::new(status)
 }
 
+/// Feeds an update file from `body` into `updater` (begin, each chunk,
+/// finish): what a board's [`Platform::receive_firmware`] does with its
+/// updater. On any error the upload is dropped and nothing is armed.
+#[cfg(feature = "update")]
+pub async fn feed_update<D, S, R>(
+    updater: &mut crate::update::Updater<'_, D, S>,
+    body: &mut request::Stream<'_, R>,
+) -> Result<crate::io::Version, FirmwareRefusal>
+where
+    D: embedded_storage_async::nor_flash::NorFlash,
+    S: embedded_storage_async::nor_flash::NorFlash,
+    R: Read,
+{
+    updater.begin().await.map_err(update_refusal)?;
+    loop {
+        match body.chunk().await {
+            Ok(Some(chunk)) => {
+                if let Err(error) = updater.write(chunk).await {
+                    updater.abort();
+                    return Err(update_refusal(error));
+                }
+            }
+            Ok(None) => break,
+            Err(error) => {
+                updater.abort();
+                return Err(FirmwareRefusal::Body(error));
+            }
+        }
+    }
+    let accepted = updater.finish().await.map_err(update_refusal)?;
+    let crate::update::Version { major, minor, patch } = accepted.version;
+    Ok(crate::io::Version { major, minor, patch })
+}
+
+/// What the API answers for an update the core refused.
+#[cfg(feature = "update")]
+fn update_refusal(error: crate::update::Error) -> FirmwareRefusal {
+    use crate::update::Error as E;
+    match error {
+        E::Format(_) => FirmwareRefusal::Invalid("not a valid update file"),
+        E::WrongBoard(_) => FirmwareRefusal::Invalid("the image is for another board"),
+        E::TooLarge { .. } => FirmwareRefusal::Invalid("the image is too large for this device"),
+        E::TooLong => FirmwareRefusal::Invalid("more bytes than the image's header says"),
+        E::CutOff { .. } => FirmwareRefusal::Invalid("the upload was cut off"),
+        E::Signature(_) => FirmwareRefusal::Invalid("the image's signature is not valid"),
+        E::Armed => FirmwareRefusal::Invalid("an update is armed already and installs at the next reboot"),
+        E::OnTrial => FirmwareRefusal::Invalid("the running firmware is on trial and not yet confirmed"),
+        E::NotStarted | E::Flash(_) | E::Config => FirmwareRefusal::Storage,
+    }
+}
+
 #[cfg(test)]
 mod testing;
 #[cfg(test)]

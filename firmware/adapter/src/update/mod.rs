@@ -261,6 +261,12 @@ impl<DFU: NorFlash, STATE: NorFlash> fmt::Debug for Updater<'_, DFU, STATE> {
 }
 
 impl<'d, DFU: NorFlash, STATE: NorFlash> Updater<'d, DFU, STATE> {
+    /// The largest update file this updater takes: the header and the
+    /// longest payload ACTIVE holds.
+    pub fn capacity(&self) -> usize {
+        HEADER_LEN.saturating_add(usize::try_from(self.max_len).unwrap_or(usize::MAX))
+    }
+
     /// The updater over `dfu` and `state`, with `aligned` (at least the
     /// state flash's word, [`MAX_STATE_WORD`] will do) as embassy-boot's
     /// state buffer. [`Error::Config`] when the partitions do not fit.
