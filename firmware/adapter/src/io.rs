@@ -240,4 +240,15 @@ impl Version {
     pub const fn registers(&self) -> [u16; 3] {
         [self.major, self.minor, self.patch]
     }
+
+    /// Writes `major.minor.patch`.
+    pub fn write_to(&self, out: &mut dyn core::fmt::Write) -> core::fmt::Result {
+        for (i, part) in self.registers().into_iter().enumerate() {
+            if i > 0 {
+                out.write_str(".")?;
+            }
+            crate::text::write_decimal(out, part)?;
+        }
+        Ok(())
+    }
 }

@@ -174,14 +174,10 @@ impl<B: Backend> Api<'_, '_, B> {
         let _change = self.http.changes.lock().await;
         let mut body = incoming.stream(reader, Instant::now() + super::UPLOAD_TIMEOUT);
         let reply = match self.backend().receive_firmware(&mut body).await {
-            Ok(crate::io::Version { major, minor, patch }) => {
-                out.text("{\"firmware\":{\"version\":\"");
-                out.number(major);
-                out.text(".");
-                out.number(minor);
-                out.text(".");
-                out.number(patch);
-                out.text("\",\"rebooting\":true}}");
+            Ok(version) => {
+                out.text("{\"firmware\":{\"version\":");
+                out.string_with(|w| version.write_to(w));
+                out.text(",\"rebooting\":true}}");
                 return Ok((Reply::new(Status::ACCEPTED), Some(Action::Reboot)));
             }
             Err(FirmwareRefusal::Body(error)) => return Err(error),
@@ -379,15 +375,8 @@ impl<B: Backend> Api<'_, '_, B> {
         out.string(settings.device.name.or_default(mac).as_str());
         out.text(",\"model\":");
         out.string(backend.model());
-        let crate::io::Version { major, minor, patch } = crate::VERSION;
         out.text(",\"firmware\":");
-        out.text("\"");
-        out.number(major);
-        out.text(".");
-        out.number(minor);
-        out.text(".");
-        out.number(patch);
-        out.text("\"");
+        out.string_with(|w| crate::VERSION.write_to(w));
         out.text(",\"uptime_s\":");
         out.number(now.as_secs());
         out.text(",\"cpu_load_percent\":");

@@ -71,22 +71,6 @@ pub struct Incoming<'b> {
     have: usize,
 }
 
-/// Reads one request from `reader` into `buffer` by `deadline`: its head,
-/// then its body of at most [`MAX_BODY_LEN`] bytes.
-///
-/// `Ok(None)`: the client closed the connection without sending a byte.
-/// A connection closed in the middle of a request is [`Error::BadRequest`].
-pub async fn read<'b, R: Read>(
-    reader: &mut R,
-    buffer: &'b mut [u8; REQUEST_BUFFER_LEN],
-    deadline: Instant,
-) -> Result<Option<Request<'b>>, Error> {
-    match read_head(reader, buffer, deadline).await? {
-        Some(incoming) => incoming.body(reader, deadline).await.map(Some),
-        None => Ok(None),
-    }
-}
-
 /// Reads a request's head from `reader` into `buffer` by `deadline`.
 ///
 /// `Ok(None)`: the client closed the connection without sending a byte.
@@ -390,6 +374,18 @@ mod tests {
             buf[..n].copy_from_slice(now);
             self.bytes = later;
             Ok(n)
+        }
+    }
+
+    /// A request read head, then body, as `serve` reads one.
+    async fn read<'b, R: Read>(
+        reader: &mut R,
+        buffer: &'b mut [u8; REQUEST_BUFFER_LEN],
+        deadline: Instant,
+    ) -> Result<Option<Request<'b>>, Error> {
+        match read_head(reader, buffer, deadline).await? {
+            Some(incoming) => incoming.body(reader, deadline).await.map(Some),
+            None => Ok(None),
         }
     }
 
