@@ -140,12 +140,15 @@ impl<B: Backend> Api<'_, '_, B> {
         deadline: Instant,
         out: &mut Out<'_>,
     ) -> Result<(Reply, Option<Action>), super::Error> {
+        let routed = route(incoming.request.method, incoming.request.path);
         #[cfg(feature = "update")]
-        if route(incoming.request.method, incoming.request.path) == Ok(Endpoint::Firmware) {
+        if routed == Ok(Endpoint::Firmware) {
             return self.upload(incoming, reader, out).await;
         }
         let request = incoming.body(reader, deadline).await?;
-        Ok(self.respond(&request, out).await)
+        let mut action = None;
+        let reply = self.answer(routed, &request, out, &mut action).await;
+        Ok((reply, action))
     }
 
     /// `POST /api/firmware`: the body streamed to the backend, which checks
@@ -192,16 +195,16 @@ impl<B: Backend> Api<'_, '_, B> {
         Ok((reply, None))
     }
 
-    /// Answers `request` into `out`: the reply, and what is left to do
-    /// once it has gone out.
-    pub(super) async fn respond(&self, request: &Request<'_>, out: &mut Out<'_>) -> (Reply, Option<Action>) {
-        let mut action = None;
-        let reply = self.answer(request, out, &mut action).await;
-        (reply, action)
-    }
-
-    async fn answer(&self, request: &Request<'_>, out: &mut Out<'_>, action: &mut Option<Action>) -> Reply {
-        let endpoint = match route(request.method, request.path) {
+    /// Answers `request`, routed to `routed`, into `out`; `action` is what
+    /// is left to do once the reply has gone out.
+    async fn answer(
+        &self,
+        routed: Result<Endpoint, Miss>,
+        request: &Request<'_>,
+        out: &mut Out<'_>,
+        action: &mut Option<Action>,
+    ) -> Reply {
+        let endpoint = match routed {
             Ok(endpoint) => endpoint,
             Err(Miss::NotFound) => return refusal(out, Status::NOT_FOUND, "request", "no such resource"),
             Err(Miss::MethodNotAllowed(allowed)) => {
