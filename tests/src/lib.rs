@@ -8,6 +8,7 @@ pub mod hal_sim;
 pub mod mdns;
 pub mod netns;
 pub mod qemu;
+pub mod update;
 
 use std::future::Future;
 use std::time::Duration;

@@ -173,18 +173,56 @@ fn built(env: &str, path: PathBuf, manifest: &str) -> PathBuf {
 /// `state` at the partition starting at `partition` ([`ACTIVE`], or
 /// [`DFU`] for an update the bootloader is to swap in): each loadable
 /// segment's bytes, at its place relative to ACTIVE's start. What the QEMU
-/// scripts do on a fresh state file, read from the ELF file's program headers.
+/// scripts do on a fresh state file.
 pub fn install(elf: &Path, state: &Path, partition: u32) {
     use std::os::unix::fs::FileExt as _;
+    let file = std::fs::OpenOptions::new().write(true).open(state).unwrap();
+    for (at, bytes) in active_segments(elf).iter() {
+        file.write_all_at(bytes, u64::from(at + partition - PSRAM)).unwrap();
+    }
+}
+
+/// The image `elf` (linked at [`ACTIVE`]) as one flat binary, what
+/// `llvm-objcopy -O binary` makes of it and an update file carries: each
+/// loadable segment at its offset from ACTIVE, the gaps erased (0xFF).
+pub fn flat_binary(elf: &Path) -> Vec<u8> {
+    let segments = active_segments(elf);
+    let mut flat = Vec::new();
+    for (at, bytes) in segments.iter() {
+        let (start, end) = (at as usize, at as usize + bytes.len());
+        if flat.len() < end {
+            flat.resize(end, 0xff);
+        }
+        flat[start..end].copy_from_slice(bytes);
+    }
+    flat
+}
+
+/// The loadable segments of a 32-bit ELF file linked into ACTIVE.
+struct Segments {
+    bytes: Vec<u8>,
+    /// Offset from ACTIVE's start, file offset, length.
+    segments: Vec<(u32, usize, usize)>,
+}
+
+impl Segments {
+    /// Each segment's offset from ACTIVE and its bytes.
+    fn iter(&self) -> impl Iterator<Item = (u32, &[u8])> {
+        self.segments.iter().map(|&(at, offset, len)| (at, &self.bytes[offset..offset + len]))
+    }
+}
+
+/// Reads `elf`'s program headers; fails on a segment outside ACTIVE or an
+/// image with no loadable bytes.
+fn active_segments(elf: &Path) -> Segments {
+    const PT_LOAD: u32 = 1;
     let bytes = std::fs::read(elf).unwrap_or_else(|e| panic!("{}: {e}", elf.display()));
     let u16_at = |at: usize| u16::from_le_bytes(bytes[at..at + 2].try_into().unwrap());
     let u32_at = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
     assert_eq!(&bytes[..5], b"\x7fELF\x01", "{} is not a 32-bit ELF file", elf.display());
     let (table, entry_len, entries) = (u32_at(0x1c) as usize, usize::from(u16_at(0x2a)), usize::from(u16_at(0x2c)));
-    let file = std::fs::OpenOptions::new().write(true).open(state).unwrap();
-    let mut written = 0;
+    let mut segments = Vec::new();
     for header in (0..entries).map(|i| table + i * entry_len) {
-        const PT_LOAD: u32 = 1;
         let (kind, offset, address, len) =
             (u32_at(header), u32_at(header + 4) as usize, u32_at(header + 12), u32_at(header + 16) as usize);
         if kind != PT_LOAD || len == 0 {
@@ -195,11 +233,10 @@ pub fn install(elf: &Path, state: &Path, partition: u32) {
             "a segment of {} loads at {address:#x}, outside ACTIVE",
             elf.display()
         );
-        let at = u64::from(address - ACTIVE + partition - PSRAM);
-        file.write_all_at(&bytes[offset..offset + len], at).unwrap();
-        written += len;
+        segments.push((address - ACTIVE, offset, len));
     }
-    assert!(written > 0, "{} has no loadable bytes", elf.display());
+    assert!(!segments.is_empty(), "{} has no loadable bytes", elf.display());
+    Segments { bytes, segments }
 }
 
 fn modified(path: &Path) -> Option<SystemTime> {

@@ -8,46 +8,16 @@
 //!
 //! Needs the bootloader and the image with `update`
 //! (`qemu::UPDATE_BUILD_COMMAND`), `qemu-system-arm` and `defmt-print`.
-//! The HTTP upload, which will arm updates through adapter::update, is not
-//! there yet; its checks are adapter::update's unit tests.
+//! The last test uploads a signed file through the API, as a user would.
 
 use std::os::unix::fs::FileExt as _;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use system_tests::qemu::{self, ACTIVE, BOOTLOADER_STATE, DFU, NO_ROBOT, PSRAM, Qemu, ROBOT_REGISTERS};
+use system_tests::update::{BOOT_MAGIC, SWAP_MAGIC, bootloader_output, signed, state_word, test_dir, upload};
 use tokio_modbus::client::Reader as _;
-
-/// embassy-boot's magic words in the boot state's first word.
-const SWAP_MAGIC: [u8; 4] = [0xf0; 4];
-const BOOT_MAGIC: [u8; 4] = [0xd0; 4];
-
-fn test_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("mbqemu-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn state_word(state: &Path, address: u32) -> [u8; 4] {
-    let mut word = [0u8; 4];
-    std::fs::File::open(state).unwrap().read_exact_at(&mut word, u64::from(address - PSRAM)).unwrap();
-    word
-}
-
-/// QEMU's stderr without QEMU's own messages, which may land in the middle
-/// of a line of the bootloader's (`qemu-system-arm: Slirp: Failed to send
-/// packet` when a reboot drops a connection).
-fn bootloader_output(stderr: &str) -> String {
-    let mut rest = stderr;
-    let mut output = String::new();
-    while let Some(at) = rest.find("qemu-system-arm: ") {
-        output.push_str(&rest[..at]);
-        rest = rest[at..].split_once('\n').map_or("", |(_, after)| after);
-    }
-    output.push_str(rest);
-    output
-}
 
 /// Boots, reads registers 256-259 (the image's answer), quits; QEMU's stderr.
 fn boot_and_read(bootloader: &Path, image: &Path, state: &Path, wait_for: &str) -> String {
@@ -156,70 +126,6 @@ fn an_update_that_does_not_confirm_is_rolled_back() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// The image's flat binary for ACTIVE: its loadable segments at their
-/// offsets from ACTIVE, gaps erased (what `llvm-objcopy -O binary` makes).
-fn flat_binary(elf: &Path) -> Vec<u8> {
-    let bytes = std::fs::read(elf).unwrap();
-    let u16_at = |at: usize| u16::from_le_bytes(bytes[at..at + 2].try_into().unwrap());
-    let u32_at = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
-    let (table, entry_len, entries) = (u32_at(0x1c) as usize, usize::from(u16_at(0x2a)), usize::from(u16_at(0x2c)));
-    let mut flat = Vec::new();
-    for header in (0..entries).map(|i| table + i * entry_len) {
-        let (kind, offset, address, len) =
-            (u32_at(header), u32_at(header + 4) as usize, u32_at(header + 12), u32_at(header + 16) as usize);
-        if kind != 1 || len == 0 {
-            continue;
-        }
-        let at = (address - ACTIVE) as usize;
-        if flat.len() < at + len {
-            flat.resize(at + len, 0xff);
-        }
-        flat[at..at + len].copy_from_slice(&bytes[offset..offset + len]);
-    }
-    flat
-}
-
-/// `payload` signed for mps2-an386 with the development key, as an update file.
-fn signed(dir: &Path, payload: &[u8], version: &str) -> Vec<u8> {
-    let bin = dir.join("app.bin");
-    let out = dir.join("app.update");
-    std::fs::write(&bin, payload).unwrap();
-    let root = qemu::workspace();
-    let status = Command::new(root.join("scripts/sign-firmware"))
-        .arg("--key")
-        .arg(root.join("keys/update-dev.key"))
-        .args(["--board", "mps2-an386", "--version", version])
-        .arg(&bin)
-        .arg("-o")
-        .arg(&out)
-        .status()
-        .unwrap();
-    assert!(status.success(), "sign-firmware failed");
-    std::fs::read(out).unwrap()
-}
-
-/// `POST /api/firmware` with `file`: the status code and the body.
-fn upload(addr: std::net::SocketAddr, file: &[u8]) -> (u16, String) {
-    use std::io::{Read as _, Write as _};
-    let mut stream = std::net::TcpStream::connect(addr).unwrap();
-    stream.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
-    let head = format!(
-        "POST /api/firmware HTTP/1.1\r\nHost: mbio\r\nContent-Type: application/octet-stream\r\n\
-         Content-Length: {}\r\n\r\n",
-        file.len()
-    );
-    stream.write_all(head.as_bytes()).unwrap();
-    stream.write_all(file).unwrap();
-    let mut response = Vec::new();
-    if let Err(e) = stream.read_to_end(&mut response) {
-        return (0, format!("no response: {e}"));
-    }
-    let text = String::from_utf8_lossy(&response).into_owned();
-    let status = text.get(9..12).and_then(|code| code.parse().ok()).unwrap_or(0);
-    let body = text.split_once("\r\n\r\n").map_or(String::new(), |(_, body)| body.to_string());
-    (status, body)
-}
-
 /// The whole path through the API: a badly signed file is refused and
 /// nothing is armed; a good one is taken (202), the device reboots, the
 /// bootloader swaps it in and the new image confirms itself once it serves.
@@ -230,7 +136,7 @@ fn an_update_uploaded_through_the_api_is_checked_swapped_in_and_confirmed() {
     let state = dir.join("psram.state");
     qemu::erased_state(&state).unwrap();
     qemu::install(&image, &state, ACTIVE);
-    let payload = flat_binary(&image);
+    let payload = qemu::flat_binary(&image);
     let file = signed(&dir, &payload, "0.1.0");
     let mut forged = file.clone();
     let last = forged.len() - 1;
@@ -270,11 +176,4 @@ fn an_update_uploaded_through_the_api_is_checked_swapped_in_and_confirmed() {
     assert_eq!(registers, NO_ROBOT, "the new image serves Modbus");
     qemu.finish();
     std::fs::remove_dir_all(&dir).unwrap();
-}
-
-#[test]
-fn qemu_messages_are_taken_out_of_the_bootloader_output() {
-    let stderr = "mps2-an386-boot: boot state qemu-system-arm: Slirp: Failed to send packet, ret: -1\nSwap\nnext\n";
-    assert_eq!(bootloader_output(stderr), "mps2-an386-boot: boot state Swap\nnext\n");
-    assert_eq!(bootloader_output("plain\n"), "plain\n");
 }
