@@ -10,97 +10,24 @@
 //! Needs root (a namespace), node, chromium and `npm ci` in tests/browser
 //! (scripts/setup installs them); fails loudly without any of them.
 
-use std::io::Read;
-use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::Stdio;
+use std::time::Duration;
 
 use serde_json::Value;
+use system_tests::browser::{BROWSER_TIMEOUT, artifacts, browser_dir, require_browser, run_within};
 use system_tests::hal_sim::{HalSim, Reply, read_frame};
 use system_tests::netns::DEVICE_IP;
 use tokio::io::AsyncWriteExt;
 use tokio_modbus::prelude::*;
 
-/// Where Debian's chromium is (the script launches it by this path).
-const CHROMIUM: &str = "/usr/bin/chromium";
-/// The most the browser run may take (it takes about 10 s).
-const BROWSER_TIMEOUT: Duration = Duration::from_secs(120);
 /// How long a lamp may take to follow an input.
 const LAMP_LIMIT_MS: u64 = 1000;
 /// DEVICE.md section 2: the page as served.
 const MAX_PAGE_LEN: usize = 24 * 1024;
 
-fn browser_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("browser")
-}
-
-/// target/artifacts of this workspace (git-ignored).
-fn artifacts() -> PathBuf {
-    let target = match std::env::var_os("CARGO_TARGET_DIR") {
-        Some(dir) => PathBuf::from(dir),
-        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join("target"),
-    };
-    let dir = target.join("artifacts");
-    std::fs::create_dir_all(&dir).expect("target/artifacts");
-    dir
-}
-
-/// Fails loudly, saying what to install, unless node, chromium and
-/// playwright-core are there.
-fn require_browser() {
-    let node = Command::new("node").arg("--version").output();
-    assert!(
-        node.as_ref().is_ok_and(|o| o.status.success()),
-        "this test needs node (apt-get install nodejs npm; scripts/setup does it): {node:?}"
-    );
-    assert!(
-        Path::new(CHROMIUM).is_file(),
-        "this test needs {CHROMIUM} (apt-get install chromium; scripts/setup does it)"
-    );
-    let playwright = browser_dir().join("node_modules/playwright-core/package.json");
-    assert!(
-        playwright.is_file(),
-        "this test needs playwright-core in tests/browser/node_modules: run `npm ci` in tests/browser (scripts/setup does it)"
-    );
-}
-
 fn ok(reply: Reply) -> Value {
     assert_eq!(reply.status, 200, "{}", reply.body);
     reply.json()
-}
-
-/// Runs `command` to its end or kills it after `limit`: status, stdout, stderr.
-fn run_within(mut command: Command, limit: Duration) -> (bool, String, String) {
-    let mut child = command.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("the browser script starts");
-    let mut stdout = child.stdout.take().expect("stdout");
-    let mut stderr = child.stderr.take().expect("stderr");
-    let out = std::thread::spawn(move || {
-        let mut text = String::new();
-        let _ = stdout.read_to_string(&mut text);
-        text
-    });
-    let err = std::thread::spawn(move || {
-        let mut text = String::new();
-        let _ = stderr.read_to_string(&mut text);
-        text
-    });
-    let deadline = Instant::now() + limit;
-    let status = loop {
-        if let Some(status) = child.try_wait().expect("the browser script can be waited on") {
-            break Some(status);
-        }
-        if Instant::now() > deadline {
-            let _ = child.kill();
-            let _ = child.wait();
-            break None;
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    };
-    let (stdout, mut stderr) = (out.join().unwrap_or_default(), err.join().unwrap_or_default());
-    if status.is_none() {
-        stderr.push_str(&format!("\n(killed after {limit:?})"));
-    }
-    (status.is_some_and(|s| s.success()), stdout, stderr)
 }
 
 #[test]
