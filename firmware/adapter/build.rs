@@ -10,16 +10,55 @@
 //! relative to the workspace root), `keys/update-dev.pub` (the development
 //! key) unless set, as `OUT_DIR/update_key.rs`, which `update::PUBLIC_KEY`
 //! includes. A file that is not a key stops the build.
+//!
+//! Always: this firmware's version, `FIRMWARE_VERSION` (`major.minor.patch`,
+//! each a `u16`) when set, else the crate's manifest version, as the
+//! `FIRMWARE_VERSION_*` variables `VERSION` and `VERSION_TEXT` read. A
+//! release sets it so its images say what they are; the update tests build
+//! a second image with a higher version to upload. Anything else than
+//! three numbers stops the build.
 
 use std::error::Error;
 
 fn main() -> Result<(), Box<dyn Error>> {
     println!("cargo::rerun-if-changed=build.rs");
+    version::build()?;
     #[cfg(feature = "http")]
     page::build()?;
     #[cfg(feature = "update")]
     update_key::build()?;
     Ok(())
+}
+
+mod version {
+    use std::error::Error;
+
+    pub fn build() -> Result<(), Box<dyn Error>> {
+        println!("cargo::rerun-if-env-changed=FIRMWARE_VERSION");
+        let (text, from) = match std::env::var("FIRMWARE_VERSION") {
+            Ok(text) if !text.is_empty() => (text, "FIRMWARE_VERSION"),
+            _ => (std::env::var("CARGO_PKG_VERSION")?, "the manifest's version"),
+        };
+        let [major, minor, patch] = parse(&text)
+            .ok_or_else(|| format!("{from} {text:?}: not a firmware version (major.minor.patch, each 0 to 65535)"))?;
+        println!("cargo::rustc-env=FIRMWARE_VERSION_MAJOR={major}");
+        println!("cargo::rustc-env=FIRMWARE_VERSION_MINOR={minor}");
+        println!("cargo::rustc-env=FIRMWARE_VERSION_PATCH={patch}");
+        println!("cargo::rustc-env=FIRMWARE_VERSION_TEXT={major}.{minor}.{patch}");
+        Ok(())
+    }
+
+    /// Three decimal `u16`s joined by dots, digits only.
+    fn parse(text: &str) -> Option<[u16; 3]> {
+        let mut parts = text.split('.').map(|part| {
+            if part.is_empty() || !part.bytes().all(|b| b.is_ascii_digit()) {
+                return None;
+            }
+            part.parse::<u16>().ok()
+        });
+        let version = [parts.next()??, parts.next()??, parts.next()??];
+        parts.next().is_none().then_some(version)
+    }
 }
 
 #[cfg(feature = "update")]

@@ -126,6 +126,16 @@ pub const UPDATE_ELF_ENV: &str = "FIRMWARE_MPS2_UPDATE_ELF";
 /// image the other tests run ([`image`]).
 pub const UPDATE_BUILD_COMMAND: &str = "cargo build -p mps2-an386-boot --release --target thumbv7em-none-eabihf && \
      CARGO_TARGET_DIR=target/update cargo build -p mps2-an386 --release --target thumbv7em-none-eabihf --features update";
+/// The version of the second image with `update`, which the update tests
+/// upload over the first ([`update_next_image`]): one no release has.
+pub const UPDATE_NEXT_VERSION: &str = "0.99.0";
+/// Overrides the second image with `update` under test.
+pub const UPDATE_NEXT_ELF_ENV: &str = "FIRMWARE_MPS2_UPDATE_NEXT_ELF";
+/// How the second image is built: the image with `update` again, with
+/// [`UPDATE_NEXT_VERSION`] for its version (firmware/adapter/build.rs reads
+/// `FIRMWARE_VERSION`), in a target directory of its own.
+pub const UPDATE_NEXT_BUILD_COMMAND: &str = "FIRMWARE_VERSION=0.99.0 CARGO_TARGET_DIR=target/update-next \
+     cargo build -p mps2-an386 --release --target thumbv7em-none-eabihf --features update";
 /// The partitions of the image with `update` (firmware/mps2-an386/memory-update.x).
 pub const BOOTLOADER_STATE: u32 = 0x2101_0000;
 pub const ACTIVE: u32 = 0x2102_0000;
@@ -152,19 +162,39 @@ pub fn update_images() -> (PathBuf, PathBuf) {
     (bootloader, image)
 }
 
+/// The second image with `update` ([`UPDATE_NEXT_BUILD_COMMAND`]: the
+/// same sources, version [`UPDATE_NEXT_VERSION`]) and its version: what the
+/// update tests upload. Checked as [`update_images`] are.
+pub fn update_next_image() -> (PathBuf, String) {
+    let target = std::env::var_os("CARGO_TARGET_DIR").map_or_else(|| workspace().join("target"), PathBuf::from);
+    let image = built_by(
+        UPDATE_NEXT_BUILD_COMMAND,
+        UPDATE_NEXT_ELF_ENV,
+        target.join("update-next/thumbv7em-none-eabihf/release/mps2-an386"),
+        "firmware/mps2-an386/Cargo.toml",
+    );
+    (image, UPDATE_NEXT_VERSION.to_string())
+}
+
 /// The file `env` names, or `path`, built after every source its dep-info lists.
 fn built(env: &str, path: PathBuf, manifest: &str) -> PathBuf {
+    built_by(UPDATE_BUILD_COMMAND, env, path, manifest)
+}
+
+/// The file `env` names, or `path`, which `command` builds, built after
+/// every source its dep-info lists.
+fn built_by(command: &str, env: &str, path: PathBuf, manifest: &str) -> PathBuf {
     if let Some(path) = std::env::var_os(env) {
         let path = PathBuf::from(path);
         assert!(path.is_file(), "{env}={} is not a file", path.display());
         return path;
     }
-    let built = modified(&path)
-        .unwrap_or_else(|| panic!("{} is missing: run `{UPDATE_BUILD_COMMAND}` first, or set {env}", path.display()));
+    let built =
+        modified(&path).unwrap_or_else(|| panic!("{} is missing: run `{command}` first, or set {env}", path.display()));
     let dep_info = std::fs::read_to_string(path.with_extension("d")).unwrap_or_default();
     for source in dep_info_sources(&dep_info).into_iter().chain([workspace().join(manifest)]) {
         let changed = modified(&source).is_some_and(|time| time > built);
-        assert!(!changed, "{} is older than {}: run `{UPDATE_BUILD_COMMAND}` again", path.display(), source.display());
+        assert!(!changed, "{} is older than {}: run `{command}` again", path.display(), source.display());
     }
     path
 }

@@ -48,16 +48,17 @@ pub use modbus;
 
 /// This firmware's version: Read Device Identification's MajorMinorRevision
 /// and `/api/status`'s `firmware`. (Registers 256-258 are the robot
-/// controller's version, from the [`io::Robot`] source.)
+/// controller's version, from the [`io::Robot`] source.) The manifest's
+/// version, or `FIRMWARE_VERSION` at build time (build.rs checks it).
 pub const VERSION: io::Version = io::Version {
-    major: parse_u16(env!("CARGO_PKG_VERSION_MAJOR")),
-    minor: parse_u16(env!("CARGO_PKG_VERSION_MINOR")),
-    patch: parse_u16(env!("CARGO_PKG_VERSION_PATCH")),
+    major: parse_u16(env!("FIRMWARE_VERSION_MAJOR")),
+    minor: parse_u16(env!("FIRMWARE_VERSION_MINOR")),
+    patch: parse_u16(env!("FIRMWARE_VERSION_PATCH")),
 };
 
-/// This firmware's version as text (`0.1.0`): the same manifest version as
+/// This firmware's version as text (`0.1.0`): the same version as
 /// [`VERSION`], as Read Device Identification sends it (MajorMinorRevision).
-pub const VERSION_TEXT: &str = env!("CARGO_PKG_VERSION");
+pub const VERSION_TEXT: &str = env!("FIRMWARE_VERSION_TEXT");
 
 /// Parses a decimal `u16` at compile time (0 for anything else).
 pub(crate) const fn parse_u16(text: &str) -> u16 {
