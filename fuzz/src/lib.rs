@@ -101,7 +101,7 @@ pub fn session(data: &[u8]) {
     let model = Server::new(config(policy), &model_device);
     let scratch = Stats::new();
     let name = config(policy).name;
-    let context = Context { identity: Identity { model: MODEL, name: &name }, stats: &scratch };
+    let context = Context { identity: Identity { model: MODEL, name: &name, previous_firmware: None }, stats: &scratch };
     let mut expected = [0u8; MAX_ADU_LEN];
     for (request, reply) in requests.iter().zip(&replies) {
         let answer = check::reply(request, reply, &policy);
@@ -146,7 +146,7 @@ pub fn handler(data: &[u8]) {
     // The handler counts nothing (the device does): Diagnostics reads 0s.
     let stats = Stats::new();
     let name = config(policy).name;
-    let context = Context { identity: Identity { model: MODEL, name: &name }, stats: &stats };
+    let context = Context { identity: Identity { model: MODEL, name: &name, previous_firmware: None }, stats: &stats };
     let mut reply = [0xa5u8; MAX_ADU_LEN];
     for frame in input.frames() {
         let before = image.clone();

@@ -28,7 +28,10 @@ use tokio_modbus::prelude::Reader;
 /// The handler's context for the ledger's model, which answers only the map's functions.
 fn map_only() -> handler::Context<'static> {
     static STATS: Stats = Stats::new();
-    handler::Context { identity: Identity { model: "hal-sim", name: &Name::UNSET }, stats: &STATS }
+    handler::Context {
+        identity: Identity { model: "hal-sim", name: &Name::UNSET, previous_firmware: None },
+        stats: &STATS,
+    }
 }
 
 /// The writes a server acknowledged, applied in order to a model map.

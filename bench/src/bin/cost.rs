@@ -52,7 +52,8 @@ fn ours(adu: &[u8], iterations: u64) -> usize {
     let mut image = Image::new();
     let policy = Policy::default();
     let stats = Stats::new();
-    let context = Context { identity: Identity { model: "bench", name: &Name::UNSET }, stats: &stats };
+    let context =
+        Context { identity: Identity { model: "bench", name: &Name::UNSET, previous_firmware: None }, stats: &stats };
     let mut reply = [0u8; MAX_ADU_LEN];
     let mut total = 0;
     for _ in 0..iterations {

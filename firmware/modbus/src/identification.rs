@@ -28,15 +28,16 @@ pub const MORE_FOLLOWS: u8 = 0xFF;
 
 code_table! {
     /// A read device id code (V1.1b3, 6.21): which objects a request asks
-    /// for. The codes this server does not implement are `Unknown`, and
-    /// answered with exception 03; that includes 03, the extended
-    /// (private, 0x80-0xFF) objects, which this server has none of.
+    /// for. The other codes are `Unknown`, and answered with exception 03;
+    /// so is 03 by a server with no extended objects.
     pub enum ReadDeviceIdCode: u8 {
         display: "read device id code",
         /// The basic objects (0x00-0x02), as a stream.
         Basic = 0x01, "basic device identification", section "6.21";
         /// The basic and regular objects (0x00-0x7F), as a stream.
         Regular = 0x02, "regular device identification", section "6.21";
+        /// All the objects, the extended (private, 0x80-0xFF) ones too, as a stream.
+        Extended = 0x03, "extended device identification", section "6.21";
         /// The object of the request's object id alone.
         Specific = 0x04, "one specific identification object", section "6.21";
     }
@@ -56,6 +57,8 @@ pub mod object {
     pub const LAST_BASIC: u8 = MAJOR_MINOR_REVISION;
     /// The last object id the regular category defines (0x07-0x7F are reserved).
     pub const LAST_REGULAR: u8 = USER_APPLICATION_NAME;
+    /// The first id of the extended category (private objects, 0x80-0xFF).
+    pub const FIRST_EXTENDED: u8 = 0x80;
 }
 
 /// The objects of a response, as it carries them: `count` times
@@ -171,11 +174,11 @@ mod tests {
     use super::*;
 
     #[test]
-    fn codes_round_trip_and_only_01_02_04_are_known() {
+    fn codes_round_trip_and_only_01_to_04_are_known() {
         for code in 0..=u8::MAX {
             let read = ReadDeviceIdCode::from(code);
             assert_eq!(u8::from(read), code);
-            assert_eq!(read == ReadDeviceIdCode::Unknown(code), ![1, 2, 4].contains(&code), "{code:#04x}");
+            assert_eq!(read == ReadDeviceIdCode::Unknown(code), ![1, 2, 3, 4].contains(&code), "{code:#04x}");
         }
         assert_eq!(
             ReadDeviceIdCode::Specific.to_string(),

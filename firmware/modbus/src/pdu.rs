@@ -821,8 +821,9 @@ mod tests {
         for pdu in [&[0x2b, 0x0d, 0x01, 0x00][..], &[0x2b, 0x00, 0x01, 0x00], &[0x2b, 0xff], &[0x2b]] {
             assert_eq!(Request::parse(pdu), Err(Exception::IllegalFunction), "{pdu:02x?}");
         }
-        // A read device id code other than 01, 02, 04 (03: no extended objects here): 03.
-        for code in [0x00, 0x03, 0x05, 0x80, 0xff] {
+        // A read device id code other than 01 to 04: 03. (03 parses: whether the
+        // device has extended objects is the server's to say.)
+        for code in [0x00, 0x05, 0x80, 0xff] {
             let pdu = Box::leak(Box::new([0x2b, 0x0e, code, 0x00]));
             assert_eq!(Request::parse(pdu), Err(Exception::IllegalDataValue), "code {code:#04x}");
         }
@@ -843,7 +844,7 @@ mod tests {
             &[0x08, 0x00, 0x0b, 0x00, 0x00, 0x00],  // and of three
             &[0x08, 0x00],                          // no whole sub-function
             &[0x2b, 0x0d, 0x01, 0x82, 0x00, 0x00, 0x00],       // another MEI type
-            &[0x2b, 0x0e, 0x03, 0x82, 0x00, 0x00, 0x00],       // read device id code 03
+            &[0x2b, 0x0e, 0x05, 0x82, 0x00, 0x00, 0x00],       // read device id code 05
             &[0x2b, 0x0e, 0x01, 0x82, 0x01, 0x00, 0x00],       // more follows neither 00 nor FF
             &[0x2b, 0x0e, 0x01, 0x82, 0x00, 0x03, 0x00],       // a next object id without more
             &[0x2b, 0x0e, 0x01, 0x82, 0x00, 0x00, 0x01],       // an object missing

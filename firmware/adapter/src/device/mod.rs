@@ -32,6 +32,9 @@ struct State {
     image: Image,
     watchdog: Watchdog,
     monitor: watchdog::Monitor,
+    /// The firmware update's state, once the board has set it.
+    #[cfg(feature = "update")]
+    update: Option<crate::update::Status>,
 }
 
 /// The shared device: the image behind a blocking mutex (held while one
@@ -56,7 +59,13 @@ impl<'a> Device<'a> {
     /// robot NOT READY and its version 0.0.0 until the first refresh
     /// samples the robot source.
     pub fn new(watchdog: Watchdog, model: &'static str, outputs: &'a dyn OutputPins) -> Self {
-        let state = State { image: Image::new(), watchdog, monitor: watchdog::Monitor::new(Instant::now()) };
+        let state = State {
+            image: Image::new(),
+            watchdog,
+            monitor: watchdog::Monitor::new(Instant::now()),
+            #[cfg(feature = "update")]
+            update: None,
+        };
         Self { state: Mutex::new(RefCell::new(state)), outputs, model, stats: Stats::new() }
     }
 
@@ -81,6 +90,29 @@ impl<'a> Device<'a> {
         self.state.lock(|state| state.borrow().monitor.tripped())
     }
 
+    /// The firmware update's state (`None` until the board sets it).
+    #[cfg(feature = "update")]
+    pub fn firmware_update(&self) -> Option<crate::update::Status> {
+        self.state.lock(|state| state.borrow().update)
+    }
+
+    /// Sets the firmware update's state: the board at boot, from the boot
+    /// state and the other image's record. From then on Read Device
+    /// Identification has the previous firmware's object (0x80).
+    #[cfg(feature = "update")]
+    pub fn set_firmware_update(&self, status: crate::update::Status) {
+        self.state.lock(|state| state.borrow_mut().update = Some(status));
+    }
+
+    /// Changes the update's state (a confirmation, an upload armed), once set.
+    #[cfg(feature = "update")]
+    pub fn set_firmware_update_state(&self, boot_state: crate::update::BootState) {
+        self.state.lock(|state| {
+            let update = &mut state.borrow_mut().update;
+            *update = update.map(|status| crate::update::Status { state: boot_state, ..status });
+        });
+    }
+
     /// Puts a new watchdog configuration in force at once.
     pub fn set_watchdog(&self, watchdog: Watchdog) {
         self.state.lock(|state| state.borrow_mut().watchdog = watchdog);
@@ -90,7 +122,15 @@ impl<'a> Device<'a> {
     /// named `name`; drives the outputs at once if the request changed them,
     /// feeds the watchdog and counts.
     pub fn respond(&self, frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], policy: &Policy, name: &Name) -> Outcome {
-        let context = Context { identity: Identity { model: self.model, name }, stats: &self.stats };
+        // The previous firmware's version, once the board has set the update's state.
+        #[cfg(feature = "update")]
+        let previous = self.firmware_update().map(|update| update.previous_text());
+        #[cfg(feature = "update")]
+        let previous_firmware = previous.as_ref().map(|text| text.as_bytes());
+        #[cfg(not(feature = "update"))]
+        let previous_firmware = None;
+        let identity = Identity { model: self.model, name, previous_firmware };
+        let context = Context { identity, stats: &self.stats };
         let outcome = self.state.lock(|state| {
             let state = &mut *state.borrow_mut();
             let watching = state.watchdog.timeout.is_some();

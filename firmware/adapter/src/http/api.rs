@@ -453,6 +453,19 @@ impl<B: Backend> Api<'_, '_, B> {
             out.number(storage.erases);
             out.text("}");
         });
+        #[cfg(feature = "update")]
+        {
+            out.text(",\"update\":");
+            optional(out, device.firmware_update(), |out, update| {
+                out.text("{\"state\":");
+                out.string(update.state.as_str());
+                out.text(",\"previous\":");
+                optional(out, update.previous, |out, previous| out.string_with(|w| previous.write_to(w)));
+                out.text(",\"capacity\":");
+                out.number(update.capacity);
+                out.text("}");
+            });
+        }
         out.text(",\"admin\":{\"password_set\":");
         out.boolean(backend.password_set());
         out.text("}}");

@@ -232,7 +232,11 @@ impl<F: NorFlash, P: Platform> Backend for Controller<'_, F, P> {
         &self,
         body: &mut super::request::Stream<'_, R>,
     ) -> Result<crate::io::Version, super::FirmwareRefusal> {
-        self.platform.receive_firmware(body).await
+        let received = self.platform.receive_firmware(body).await;
+        if received.is_ok() {
+            self.server.service().set_firmware_update_state(crate::update::BootState::Armed);
+        }
+        received
     }
 }
 

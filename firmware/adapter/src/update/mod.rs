@@ -496,6 +496,112 @@ impl<'d, DFU: NorFlash, STATE: NorFlash> Updater<'d, DFU, STATE> {
     }
 }
 
+/// The record every image with `update` carries at the same place (each
+/// board puts it right after its vector table, with a linker section of its
+/// own): how an image's version is read from its bytes in DFU, where a swap
+/// leaves the image it replaced. 8 bytes of magic, the version's three
+/// numbers little-endian, 2 bytes of zeros.
+pub const IMAGE_INFO_LEN: usize = 16;
+
+/// The record's first bytes ("mbio image", format 1).
+const IMAGE_INFO_MAGIC: [u8; 8] = *b"MBIOIMG\x01";
+
+/// The record of an image of `version` (for its `.image_info` section).
+pub const fn image_info(version: crate::io::Version) -> [u8; IMAGE_INFO_LEN] {
+    let [a, b, c, d, e, f, g, h] = IMAGE_INFO_MAGIC;
+    let [m0, m1] = version.major.to_le_bytes();
+    let [n0, n1] = version.minor.to_le_bytes();
+    let [p0, p1] = version.patch.to_le_bytes();
+    [a, b, c, d, e, f, g, h, m0, m1, n0, n1, p0, p1, 0, 0]
+}
+
+/// The version an image's record says; `None` for bytes that are not a
+/// record (an image from before records, or no image).
+pub fn parse_image_info(record: &[u8]) -> Option<crate::io::Version> {
+    let [magic @ .., m0, m1, n0, n1, p0, p1, 0, 0] = *<&[u8; IMAGE_INFO_LEN]>::try_from(record).ok()? else {
+        return None;
+    };
+    (magic == IMAGE_INFO_MAGIC).then(|| crate::io::Version {
+        major: u16::from_le_bytes([m0, m1]),
+        minor: u16::from_le_bytes([n0, n1]),
+        patch: u16::from_le_bytes([p0, p1]),
+    })
+}
+
+/// Where the images' records are and how the bootloader swaps: what
+/// [`Updater::other_image`] needs to find the other image's record in DFU.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ImageLayout {
+    /// The record's offset from an image's start.
+    pub info_offset: u32,
+    /// The bootloader's page, its unit of swapping (the larger erase size
+    /// of ACTIVE and DFU): a swap leaves the old image one page into DFU.
+    pub page: u32,
+}
+
+impl<DFU: NorFlash, STATE: NorFlash> Updater<'_, DFU, STATE> {
+    /// The version of the other image DFU holds, by its record: after a
+    /// swap (the running image on trial or confirmed since) the image it
+    /// replaced, which embassy-boot's swap leaves one page into DFU; after
+    /// a rollback the image that was rolled back, at DFU's start. `None`
+    /// when DFU holds no record there: nothing swapped yet, an image
+    /// without one, a swap armed, or a later upload written over it.
+    pub async fn other_image(&mut self, layout: ImageLayout) -> Result<Option<crate::io::Version>, Error> {
+        let at = match self.boot_state().await? {
+            BootState::Confirmed | BootState::Trial => layout.page.checked_add(layout.info_offset),
+            BootState::RolledBack => Some(layout.info_offset),
+            BootState::Armed | BootState::DfuDetach => None,
+        };
+        let Some(at) = at.filter(|at| {
+            at.checked_add(len_u32(IMAGE_INFO_LEN)).is_some_and(|end| end as usize <= self.dfu.capacity())
+        }) else {
+            return Ok(None);
+        };
+        let mut record = [0u8; IMAGE_INFO_LEN];
+        self.dfu.read(at, &mut record).await.map_err(flash_error)?;
+        Ok(parse_image_info(&record))
+    }
+}
+
+/// What `/api/status` and Read Device Identification say about updates
+/// (DEVICE.md section 5): the board sets it on the device at boot
+/// ([`crate::device::Device::set_firmware_update`]), and the API when an upload is armed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Status {
+    pub state: BootState,
+    /// The other image's version ([`Updater::other_image`]), read at boot.
+    pub previous: Option<crate::io::Version>,
+    /// The largest update file the device takes.
+    pub capacity: u32,
+}
+
+impl Status {
+    /// The previous firmware's version as Read Device Identification sends
+    /// it (object 0x80): empty when unknown.
+    pub fn previous_text(&self) -> heapless::String<{ crate::server::identity::MAX_VERSION_LEN }> {
+        let mut text = heapless::String::new();
+        if let Some(previous) = self.previous {
+            // At most 17 bytes (65535.65535.65535): it fits.
+            let _ = previous.write_to(&mut text);
+        }
+        text
+    }
+}
+
+impl BootState {
+    /// The state as `/api/status` names it.
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Self::Confirmed => "confirmed",
+            Self::Trial => "trial",
+            Self::Armed => "armed",
+            Self::RolledBack => "rolled_back",
+            Self::DfuDetach => "dfu_detach",
+        }
+    }
+}
+
 /// A length within a buffer, as `u32` (saturating: it never is larger).
 fn len_u32(len: usize) -> u32 {
     u32::try_from(len).unwrap_or(u32::MAX)

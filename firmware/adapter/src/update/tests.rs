@@ -400,3 +400,73 @@ proptest! {
         bench.assert_nothing_armed();
     }
 }
+
+#[test]
+fn an_image_record_round_trips_and_nothing_else_reads_as_one() {
+    let version = crate::io::Version { major: 1, minor: 20, patch: 300 };
+    let record = image_info(version);
+    assert_eq!(parse_image_info(&record), Some(version));
+    assert_eq!(parse_image_info(&[0xff; IMAGE_INFO_LEN]), None, "erased flash");
+    assert_eq!(parse_image_info(&record[..IMAGE_INFO_LEN - 1]), None, "too short");
+    for i in 0..IMAGE_INFO_LEN {
+        let mut changed = record;
+        changed[i] ^= 0x01;
+        // The version's bytes make another version; the magic's and the zeros', no record.
+        assert_eq!(parse_image_info(&changed).is_some(), (8..14).contains(&i), "byte {i} changed");
+    }
+}
+
+/// Where the record is in the test images: past a pretend vector table.
+const LAYOUT: ImageLayout = ImageLayout { info_offset: 0x40, page: PAGE as u32 };
+
+/// A payload of `len` bytes carrying the record of `version`.
+fn payload_of(version: crate::io::Version, len: usize, seed: u8) -> Vec<u8> {
+    let mut payload = payload(len, seed);
+    let at = LAYOUT.info_offset as usize;
+    payload[at..at + IMAGE_INFO_LEN].copy_from_slice(&image_info(version));
+    payload
+}
+
+#[test]
+fn the_other_image_is_the_one_a_swap_replaced_or_a_rollback_rejected() {
+    let old = crate::io::Version { major: 0, minor: 1, patch: 0 };
+    let new = crate::io::Version { major: 0, minor: 2, patch: 0 };
+    let mut bench = Bench::new();
+    bench.active = payload_of(old, ACTIVE_LEN, 9);
+    assert_eq!(block_on(bench.updater(public_key()).other_image(LAYOUT)), Ok(None), "never swapped: DFU is empty");
+    let file = image(&payload_of(new, PAYLOAD_LEN, 1));
+    {
+        let mut updater = bench.updater(public_key());
+        block_on(upload(&mut updater, &file, 1000)).unwrap();
+        assert_eq!(block_on(updater.other_image(LAYOUT)), Ok(None), "armed: DFU holds the new image");
+    }
+    assert_eq!(bench.reset(), embassy_boot::State::Swap);
+    {
+        let mut updater = bench.updater(public_key());
+        assert_eq!(block_on(updater.boot_state()), Ok(BootState::Trial));
+        assert_eq!(block_on(updater.other_image(LAYOUT)), Ok(Some(old)), "on trial: the image it replaced");
+    }
+    // Not confirmed: the next reset rolls back, and the other image is the rejected one.
+    assert_eq!(bench.reset(), embassy_boot::State::Swap);
+    {
+        let mut updater = bench.updater(public_key());
+        assert_eq!(block_on(updater.boot_state()), Ok(BootState::RolledBack));
+        assert_eq!(block_on(updater.other_image(LAYOUT)), Ok(Some(new)), "rolled back: the rejected image");
+    }
+    // Uploaded again, swapped in and confirmed: the old image is the other one.
+    {
+        let mut updater = bench.updater(public_key());
+        block_on(upload(&mut updater, &file, 1000)).unwrap();
+    }
+    assert_eq!(bench.reset(), embassy_boot::State::Swap);
+    let mut updater = bench.updater(public_key());
+    assert_eq!(block_on(updater.confirm()), Ok(true));
+    assert_eq!(block_on(updater.other_image(LAYOUT)), Ok(Some(old)), "confirmed: the image it replaced");
+}
+
+#[test]
+fn the_boot_states_have_the_names_the_api_uses() {
+    let names = [BootState::Confirmed, BootState::Trial, BootState::Armed, BootState::RolledBack, BootState::DfuDetach]
+        .map(BootState::as_str);
+    assert_eq!(names, ["confirmed", "trial", "armed", "rolled_back", "dfu_detach"]);
+}

@@ -9,7 +9,7 @@ use test_support::framer::adu;
 
 /// The device these tests answer as. Its counters stay 0 (the handler
 /// never counts; the device does): a test of Diagnostics sets its own.
-const IDENTITY: Identity<'static> = Identity { model: "test-board", name: &PRESS_4 };
+const IDENTITY: Identity<'static> = Identity { model: "test-board", name: &PRESS_4, previous_firmware: None };
 const PRESS_4: Name = match Name::parse("press-4") {
     Ok(name) => name,
     Err(_) => Name::UNSET,
@@ -322,7 +322,10 @@ fn the_device_name_and_model_come_from_the_context_and_the_longest_fit_one_reply
     let long_name = Name::parse(&"a".repeat(crate::settings::MAX_NAME_LEN)).unwrap();
     let long_model = "m".repeat(identity::MAX_MODEL_LEN + 8);
     let stats = Stats::new();
-    let context = Context { identity: Identity { model: &long_model, name: &long_name }, stats: &stats };
+    let context = Context {
+        identity: Identity { model: &long_model, name: &long_name, previous_firmware: Some(b"65535.65535.65535") },
+        stats: &stats,
+    };
     let mut reply = [0xa5u8; MAX_ADU_LEN];
     let frame = adu(1, 0, 1, &[0x2b, 0x0e, 0x02, 0x00]);
     let Outcome::Reply { len, exception: None, .. } = respond(&frame, &mut reply, &mut image, &seed(), &context) else {
@@ -472,4 +475,36 @@ fn every_prefix_of_the_device_requests_is_not_a_frame() {
         assert_eq!(exception, None, "{}", fixture.name);
     }
     assert_eq!(image, Image::new());
+}
+
+#[test]
+fn the_previous_firmware_is_the_extended_object_of_a_device_that_takes_updates() {
+    use crate::modbus::identification::{Objects, ReadDeviceIdCode};
+    let updating = Identity { previous_firmware: Some(b"0.1.0"), ..IDENTITY };
+    let mut out = [0u8; 253];
+    // The answer's header (code, conformity) and its objects' ids and values.
+    let mut ask = |identity: &Identity<'_>, code: u8, object_id: u8| {
+        let len = identity.respond(ReadDeviceIdCode::from(code), object_id, &mut out)?;
+        let reply = &out[..len];
+        let objects = Objects::parse(reply[6], &reply[7..]).unwrap();
+        let objects: Vec<(u8, Vec<u8>)> = objects.iter().map(|(id, value)| (id, value.to_vec())).collect();
+        Ok::<_, Exception>((reply[2], reply[3], objects))
+    };
+    let (code, conformity, objects) = ask(&updating, 0x03, 0x00).unwrap();
+    assert_eq!((code, conformity), (0x03, 0x83), "extended, stream and individual access");
+    let ids: Vec<u8> = objects.iter().map(|(id, _)| *id).collect();
+    assert_eq!(ids, [0, 1, 2, 3, 4, 5, 6, 0x80], "the regular objects, then the private one");
+    assert_eq!(objects[7].1, b"0.1.0");
+    // From the private object, or one by one; a reserved id starts at 0.
+    assert_eq!(ask(&updating, 0x03, 0x80).unwrap().2, [(0x80, b"0.1.0".to_vec())]);
+    assert_eq!(ask(&updating, 0x04, 0x80).unwrap().2, [(0x80, b"0.1.0".to_vec())]);
+    assert_eq!(ask(&updating, 0x03, 0x07).unwrap().2.len(), 8);
+    assert_eq!(ask(&updating, 0x02, 0x00).unwrap().1, 0x83, "the conformity is the device's, whatever the code");
+    // Unknown: an empty object.
+    let unknown = Identity { previous_firmware: Some(b""), ..IDENTITY };
+    assert_eq!(ask(&unknown, 0x04, 0x80).unwrap().2, [(0x80, Vec::new())]);
+    // A device that takes no updates: no extended object, 03 refused as before.
+    assert_eq!(ask(&IDENTITY, 0x03, 0x00), Err(Exception::IllegalDataValue));
+    assert_eq!(ask(&IDENTITY, 0x04, 0x80), Err(Exception::IllegalDataAddress));
+    assert_eq!(ask(&IDENTITY, 0x02, 0x00).unwrap().1, 0x82);
 }
