@@ -29,6 +29,21 @@ pub fn state_word(state: &Path, address: u32) -> [u8; 4] {
     word
 }
 
+/// How many 4-byte words of the boot state's first [`STATE_WATCHED`]
+/// bytes are written (not erased): embassy-boot's magic and, during a swap,
+/// one word per step done. A swap's steps come in order, so this is how far
+/// it has got.
+pub fn state_words_written(state: &Path) -> usize {
+    let mut words = [0u8; STATE_WATCHED];
+    let file = std::fs::File::open(state).unwrap();
+    file.read_exact_at(&mut words, u64::from(crate::qemu::BOOTLOADER_STATE - PSRAM)).unwrap();
+    words.chunks_exact(4).filter(|word| *word != [0xff; 4]).count()
+}
+
+/// The part of the boot state [`state_words_written`] reads: more than a
+/// swap of the 512 KiB ACTIVE in 4 KiB pages writes (two words a page).
+pub const STATE_WATCHED: usize = 4096;
+
 /// QEMU's stderr without QEMU's own messages, which may land in the middle
 /// of a line of the bootloader's (`qemu-system-arm: Slirp: Failed to send
 /// packet` when a reboot drops a connection).
@@ -61,6 +76,33 @@ pub fn signed(dir: &Path, payload: &[u8], version: &str) -> Vec<u8> {
         .unwrap();
     assert!(status.success(), "sign-firmware failed");
     std::fs::read(out).unwrap()
+}
+
+/// `GET /api/status` as JSON, tried until `timeout` passes (`None`: no
+/// answer by then; a body that is not JSON fails the test).
+pub fn api_status(addr: SocketAddr, timeout: Duration) -> Option<serde_json::Value> {
+    let deadline = std::time::Instant::now() + timeout;
+    loop {
+        if let Some(body) = get_status(addr) {
+            return Some(serde_json::from_str(&body).unwrap_or_else(|e| panic!("/api/status: {e}: {body}")));
+        }
+        if std::time::Instant::now() >= deadline {
+            return None;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}
+
+/// One `GET /api/status`: the body of a 200.
+fn get_status(addr: SocketAddr) -> Option<String> {
+    use std::io::{Read as _, Write as _};
+    let mut stream = std::net::TcpStream::connect_timeout(&addr, Duration::from_secs(2)).ok()?;
+    stream.set_read_timeout(Some(Duration::from_secs(5))).ok()?;
+    stream.write_all(b"GET /api/status HTTP/1.1\r\nHost: mbio\r\nConnection: close\r\n\r\n").ok()?;
+    let mut response = String::new();
+    stream.read_to_string(&mut response).ok()?;
+    let (head, body) = response.split_once("\r\n\r\n")?;
+    head.starts_with("HTTP/1.1 200").then(|| body.to_owned())
 }
 
 /// `POST /api/firmware` with `file`: the status code and the body (status

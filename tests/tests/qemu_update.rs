@@ -4,20 +4,27 @@
 //! armed in DFU the way `adapter::update` arms one (the image in DFU, the
 //! swap magic in the boot state) is swapped in, and the new image confirms
 //! itself once it serves, or is rolled back at the next boot when it has
-//! not; an empty ACTIVE is refused, not jumped into.
+//! not; an empty ACTIVE is refused, not jumped into; an image that hangs
+//! on trial is reset by the watchdog and rolled back.
 //!
 //! Needs the bootloader and the image with `update`
-//! (`qemu::UPDATE_BUILD_COMMAND`), `qemu-system-arm` and `defmt-print`.
-//! The last test uploads a signed file through the API, as a user would.
+//! (`qemu::UPDATE_BUILD_COMMAND`), the second image
+//! (`qemu::UPDATE_NEXT_BUILD_COMMAND`), `qemu-system-arm` and `defmt-print`.
+//! One test uploads a signed file of another version through the API, as a
+//! user would, and reads the versions in 0x2B and the status.
 
 use std::os::unix::fs::FileExt as _;
 use std::path::Path;
 use std::process::{Command, Stdio};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
+use serde_json::json;
 use system_tests::qemu::{self, ACTIVE, BOOTLOADER_STATE, DFU, NO_ROBOT, PSRAM, Qemu, ROBOT_REGISTERS};
-use system_tests::update::{BOOT_MAGIC, SWAP_MAGIC, bootloader_output, signed, state_word, test_dir, upload};
+use system_tests::update::{
+    BOOT_MAGIC, SWAP_MAGIC, api_status, bootloader_output, signed, state_word, test_dir, upload,
+};
 use tokio_modbus::client::Reader as _;
+use tokio_modbus::prelude::{ConformityLevel, ReadCode};
 
 /// Boots, reads registers 256-259 (the image's answer), quits; QEMU's stderr.
 fn boot_and_read(bootloader: &Path, image: &Path, state: &Path, wait_for: &str) -> String {
@@ -132,12 +139,13 @@ fn an_update_that_does_not_confirm_is_rolled_back() {
 #[test]
 fn an_update_uploaded_through_the_api_is_checked_swapped_in_and_confirmed() {
     let (bootloader, image) = qemu::update_images();
+    let (next, next_version) = qemu::update_next_image();
+    let old_version = qemu::firmware_version().map(|n| n.to_string()).join(".");
     let dir = test_dir("update-upload");
     let state = dir.join("psram.state");
     qemu::erased_state(&state).unwrap();
     qemu::install(&image, &state, ACTIVE);
-    let payload = qemu::flat_binary(&image);
-    let file = signed(&dir, &payload, "0.1.0");
+    let file = signed(&dir, &qemu::flat_binary(&next), &next_version);
     let mut forged = file.clone();
     let last = forged.len() - 1;
     forged[last] ^= 0x01;
@@ -147,6 +155,15 @@ fn an_update_uploaded_through_the_api_is_checked_swapped_in_and_confirmed() {
     // The network in place (a connection made before DHCP's address is
     // reset when it comes).
     qemu.wait_for_log("Modbus TCP server at", Duration::from_secs(30));
+    let status = api_status(qemu.http_addr(), Duration::from_secs(20)).expect("the API answers");
+    assert_eq!(status["device"]["firmware"], old_version.as_str());
+    let capacity = status["update"]["capacity"].as_u64().expect("the update's capacity");
+    assert!(capacity > file.len() as u64, "{status}");
+    assert_eq!(
+        status["update"],
+        json!({"state": "confirmed", "previous": null, "capacity": capacity}),
+        "never updated"
+    );
     let (status, body) = upload(qemu.http_addr(), &forged);
     assert_eq!(status, 400, "{body}");
     assert!(body.contains("signature"), "{body}");
@@ -174,6 +191,92 @@ fn an_update_uploaded_through_the_api_is_checked_swapped_in_and_confirmed() {
         panic!("the new image does not answer Modbus");
     });
     assert_eq!(registers, NO_ROBOT, "the new image serves Modbus");
+    // The new version runs, and the old one is the previous: in 0x2B, as
+    // tokio-modbus reads it (the extended stream), and in the status.
+    let objects = qemu.run(|| async {
+        let reply = qemu.connect().await.read_device_identification(ReadCode::Extended, 0).await.unwrap().unwrap();
+        assert_eq!(reply.conformity_level, ConformityLevel::ExtendedIdentification, "0x83");
+        reply.device_id_objects.iter().map(|o| (o.id, o.value_as_str().expect("ASCII").to_owned())).collect::<Vec<_>>()
+    });
+    let ids: Vec<u8> = objects.iter().map(|(id, _)| *id).collect();
+    assert_eq!(ids, [0, 1, 2, 3, 4, 5, 6, 0x80], "{objects:?}");
+    assert_eq!(objects[2].1, next_version, "MajorMinorRevision: the new version");
+    assert_eq!(objects[7].1, old_version, "the private object 0x80: the previous version");
+    let status = api_status(qemu.http_addr(), Duration::from_secs(20)).expect("the API answers");
+    assert_eq!(status["device"]["firmware"], next_version.as_str());
+    assert_eq!(status["update"], json!({"state": "confirmed", "previous": old_version, "capacity": capacity}));
+    qemu.finish();
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// An image that hangs: a vector table whose reset and NMI vectors point at
+/// `b .` (a branch to itself), and nothing else. The bootloader starts it;
+/// it never pets the watchdog nor confirms itself.
+fn hung_image() -> Vec<u8> {
+    const STACK_TOP: u32 = 0x2000_1000;
+    const LOOP_OFFSET: u32 = 0x40;
+    let branch_to_self = (ACTIVE + LOOP_OFFSET) | 1; // Thumb
+    let mut image = Vec::new();
+    for word in [STACK_TOP, branch_to_self, branch_to_self, branch_to_self] {
+        image.extend(word.to_le_bytes());
+    }
+    image.resize(LOOP_OFFSET as usize, 0);
+    image.extend([0xfe, 0xe7, 0xfe, 0xe7]); // b . ; b .
+    image
+}
+
+/// DEVICE.md section 5: an image swapped in that does not confirm itself
+/// within 30 s is reset by the watchdog the bootloader started, and the
+/// bootloader rolls back; the old image, confirmed, pets the watchdog and
+/// keeps running past the limit.
+#[test]
+fn a_swapped_in_image_that_hangs_is_reset_by_the_watchdog_and_rolled_back() {
+    let (bootloader, image) = qemu::update_images();
+    let old_version = qemu::firmware_version().map(|n| n.to_string()).join(".");
+    let dir = test_dir("update-watchdog");
+    let state = dir.join("psram.state");
+    qemu::erased_state(&state).unwrap();
+    qemu::install(&image, &state, ACTIVE);
+    let file = std::fs::OpenOptions::new().write(true).open(&state).unwrap();
+    file.write_all_at(&hung_image(), u64::from(DFU - PSRAM)).unwrap();
+    file.write_all_at(&SWAP_MAGIC, u64::from(BOOTLOADER_STATE - PSRAM)).unwrap();
+    drop(file);
+
+    let qemu = Qemu::slirp_booting(&bootloader, &image, &state);
+    let boots = || bootloader_output(&qemu.stderr()).matches("mps2-an386-boot: boot state").count();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while boots() == 0 {
+        assert!(Instant::now() < deadline, "the bootloader did not start");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let swapped = Instant::now();
+    // The hung image runs until the watchdog's second expiry.
+    let deadline = swapped + Duration::from_secs(60);
+    while boots() < 2 {
+        assert!(Instant::now() < deadline, "no reset within 60 s of the swap\n{}", qemu.stderr());
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let reset_after = swapped.elapsed();
+    eprintln!("watchdog: the hung image was reset {:.1} s after the swap", reset_after.as_secs_f64());
+    assert!(reset_after > Duration::from_secs(20), "reset after {reset_after:?}: not the watchdog's 30 s");
+    let stderr = bootloader_output(&qemu.stderr());
+    assert!(stderr.contains("mps2-an386-boot: boot state Swap\nmps2-an386-boot: boot state Swap"), "{stderr}");
+
+    // Rolled back: the old image runs and knows it; the status says so.
+    qemu.wait_for_log("update: boot state RolledBack", Duration::from_secs(30));
+    let rolled_back = Instant::now();
+    let status = api_status(qemu.http_addr(), Duration::from_secs(30)).expect("the API answers");
+    assert_eq!(status["device"]["firmware"], old_version.as_str());
+    assert_eq!(status["update"]["state"], "rolled_back", "{status}");
+    assert_eq!(status["update"]["previous"], serde_json::Value::Null, "the hung image has no record: {status}");
+    // The old image pets the watchdog: still the same boot 40 s on, serving.
+    std::thread::sleep(Duration::from_secs(40).saturating_sub(rolled_back.elapsed()));
+    let registers = qemu.run(|| async {
+        let mut ctx = qemu.connect().await;
+        ctx.read_holding_registers(ROBOT_REGISTERS, 4).await.unwrap().unwrap()
+    });
+    assert_eq!(registers, NO_ROBOT);
+    assert_eq!(boots(), 2, "a reset after the rollback\n{}", qemu.stderr());
     qemu.finish();
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -5,7 +5,9 @@
 //! rules as the image (RuleFlash: 4-byte words, 4 KiB pages, the swap's
 //! unit), so it swaps in an armed update, or rolls back one that did not
 //! confirm itself, page by page and power-fail safe. Then it starts the
-//! image in ACTIVE: its vector table, stack pointer and reset vector.
+//! watchdog (an image on trial that does not confirm itself within 30 s is
+//! reset, and rolled back) and the image in ACTIVE: its vector table,
+//! stack pointer and reset vector.
 //!
 //! It says what it did on semihosting's stderr (the image's defmt log is
 //! on stdout), and ends QEMU with an exit code of its own when it cannot
@@ -15,6 +17,8 @@
 #![no_main]
 
 use adapter::storage::flash::RuleFlash;
+#[path = "../../mps2-an386/src/watchdog.rs"]
+mod watchdog;
 use cortex_m_rt::entry;
 use embassy_boot::{BootError, BootLoader, BootLoaderConfig, State};
 use semihosting::{eprintln, process};
@@ -65,6 +69,9 @@ fn main() -> ! {
         );
         process::exit(EXIT_NO_IMAGE)
     }
+    // The image has the watchdog's two expiries to confirm itself (or to
+    // pet it, when it is not on trial): else the reset, and a rollback.
+    watchdog::start();
     // SAFETY: the image's vector table is at ACTIVE_START (checked above as
     // far as it can be); VTOR takes its address, then `bootload` loads its
     // stack pointer and jumps to its reset handler, never to return.

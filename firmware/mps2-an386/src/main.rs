@@ -30,6 +30,8 @@ mod runtime;
 mod systick;
 #[cfg(feature = "update")]
 mod update;
+#[cfg(feature = "update")]
+mod watchdog;
 
 use adapter::io::NoRobot;
 use board::{Leds, Mmio, RamInputs};
@@ -77,7 +79,7 @@ static ROBOT_LINK: adapter::link::Link = adapter::link::Link::new();
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
-    defmt::info!("firmware {} on mps2-an386", env!("CARGO_PKG_VERSION"));
+    defmt::info!("firmware {} on mps2-an386", adapter::VERSION_TEXT);
     let ethernet = match board::init() {
         Some(Ok(ethernet)) => ethernet,
         Some(Err(e)) => fail("LAN9118", e),
@@ -215,9 +217,14 @@ fn spawn_all(
     }
     #[cfg(feature = "update")]
     match update::updater() {
-        Some(updater) => spawner.spawn(confirm_task(stack, updater)?),
-        None => defmt::error!("update: no updater: this image cannot confirm itself"),
+        Some(updater) => spawner.spawn(confirm_task(stack, updater, device)?),
+        None => {
+            defmt::error!("update: no updater: this image cannot confirm itself");
+            update::keep_petting();
+        }
     }
+    #[cfg(feature = "update")]
+    spawner.spawn(watchdog_task()?);
     #[cfg(feature = "http")]
     {
         for _ in 0..adapter::http::MAX_HTTP_CONNECTIONS {
@@ -297,6 +304,17 @@ async fn locate_task() -> ! {
 /// Confirms this image once it serves, when it runs on trial after a swap.
 #[cfg(feature = "update")]
 #[embassy_executor::task]
-async fn confirm_task(stack: Stack<'static>, updater: &'static update::SharedUpdater) {
-    update::confirm_when_serving(stack, updater).await
+async fn confirm_task(
+    stack: Stack<'static>,
+    updater: &'static update::SharedUpdater,
+    device: &'static Device<'static>,
+) {
+    update::confirm_when_serving(stack, updater, device).await
+}
+
+/// Pets the bootloader's watchdog, unless this image is on trial.
+#[cfg(feature = "update")]
+#[embassy_executor::task]
+async fn watchdog_task() -> ! {
+    update::pet_loop().await
 }

@@ -6,13 +6,19 @@
 //!
 //! After a swap the new image is on trial: [`confirm_when_serving`]
 //! confirms it once the network is up and the Modbus listeners serve. If it
-//! never gets there, the next reset rolls back. (The watchdog that makes
-//! that reset, and the HTTP upload, are still to come.)
+//! never gets there, the next reset rolls back: the watchdog the bootloader
+//! started makes it ([`crate::watchdog`]), as the image does not pet it
+//! while on trial ([`pet_loop`]).
+//!
+//! The image carries its record ([`IMAGE_INFO`]) right after its vector
+//! table (memory-update.x): the running image reads the other image's
+//! version from DFU by it, for `/api/status` and 0x2B.
 
 use core::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
+use adapter::device::Device;
 use adapter::storage::flash::RuleFlash;
-use adapter::update::{self, Config, Updater};
+use adapter::update::{self, BootState, Config, ImageLayout, Status, Updater};
 use embassy_net::Stack;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::mutex::Mutex;
@@ -27,6 +33,24 @@ pub type BoardUpdater = Updater<'static, PartitionFlash, PartitionFlash>;
 pub type SharedUpdater = Mutex<CriticalSectionRawMutex, BoardUpdater>;
 
 static TAKEN: AtomicBool = AtomicBool::new(false);
+
+/// This image's record: its version, where every image for this board has
+/// it (the `.image_info` section of memory-update.x).
+#[used]
+#[unsafe(link_section = ".image_info")]
+static IMAGE_INFO: [u8; update::IMAGE_INFO_LEN] = update::image_info(adapter::VERSION);
+
+/// The bootloader's swap page (RuleFlash's page, as in the bootloader).
+const PAGE: u32 = 4096;
+
+/// Where the records are: this image's record's offset from ACTIVE's start.
+fn layout() -> ImageLayout {
+    unsafe extern "C" {
+        static __bootloader_active_start: u8;
+    }
+    let offset = (&raw const IMAGE_INFO as usize).saturating_sub(&raw const __bootloader_active_start as usize);
+    ImageLayout { info_offset: u32::try_from(offset).unwrap_or(u32::MAX), page: PAGE }
+}
 
 /// `start..end` of the linker's symbols as a slice.
 ///
@@ -99,17 +123,72 @@ pub fn capacity() -> usize {
 
 static CAPACITY: AtomicUsize = AtomicUsize::new(0);
 
-/// Logs the boot state, then confirms an image on trial once the network
-/// has its address (the Modbus listeners are spawned before this runs).
-pub async fn confirm_when_serving(stack: Stack<'static>, updater: &'static SharedUpdater) {
-    match updater.lock().await.boot_state().await {
-        Ok(state) => defmt::info!("update: boot state {}", state),
-        Err(e) => defmt::warn!("update: boot state unreadable: {}", e),
+/// Logs the boot state and sets it on the device with the other image's version,
+/// then confirms an image on trial once the network has its address (the
+/// Modbus listeners are spawned before this runs).
+pub async fn confirm_when_serving(
+    stack: Stack<'static>,
+    updater: &'static SharedUpdater,
+    device: &'static Device<'static>,
+) {
+    {
+        let mut updater = updater.lock().await;
+        match updater.boot_state().await {
+            Ok(state) => {
+                let previous = updater.other_image(layout()).await.unwrap_or(None);
+                let capacity = u32::try_from(updater.capacity()).unwrap_or(u32::MAX);
+                defmt::info!("update: boot state {}, previous firmware {}", state, previous);
+                device.set_firmware_update(Status { state, previous, capacity });
+                // On trial the watchdog runs out unless the image confirms.
+                PETTING.store(state != BootState::Trial, Ordering::Relaxed);
+            }
+            Err(e) => {
+                // Whether this is a trial cannot be told: a reset every
+                // 30 s would not make it better.
+                defmt::warn!("update: boot state unreadable: {}", e);
+                keep_petting();
+            }
+        }
     }
     stack.wait_config_up().await;
     match updater.lock().await.confirm().await {
-        Ok(true) => defmt::info!("update: this image is confirmed"),
+        Ok(true) => {
+            device.set_firmware_update_state(BootState::Confirmed);
+            PETTING.store(true, Ordering::Relaxed);
+            crate::watchdog::pet();
+            defmt::info!("update: this image is confirmed");
+        }
         Ok(false) => {}
         Err(e) => defmt::error!("update: confirmation failed: {}", e),
     }
 }
+
+/// Whether the image pets the bootloader's watchdog: once the boot state is
+/// read and is not a trial, or once the image on trial confirmed itself.
+static PETTING: AtomicBool = AtomicBool::new(false);
+
+/// Makes [`pet_loop`] pet the watchdog from now on whatever the boot
+/// state: when the image cannot tell it (no updater, no boot state).
+pub fn keep_petting() {
+    PETTING.store(true, Ordering::Relaxed);
+}
+
+/// Pets the watchdog every [`crate::watchdog::PET_INTERVAL_MS`] while
+/// [`PETTING`] says so. Before the boot state is known, and on trial until
+/// the confirmation, it does not: the bootloader's watchdog expires
+/// [`crate::watchdog::EXPIRY_S`] after the start (an NMI, [`NonMaskableInt`])
+/// and resets the board [`crate::watchdog::TRIAL_LIMIT_S`] after the start.
+pub async fn pet_loop() -> ! {
+    loop {
+        if PETTING.load(Ordering::Relaxed) {
+            crate::watchdog::pet();
+        }
+        embassy_time::Timer::after_millis(crate::watchdog::PET_INTERVAL_MS).await;
+    }
+}
+
+/// The watchdog's first expiry, on trial: nothing to do. The line stays
+/// raised (QEMU pends the NMI on its rising edge: once), and the reset
+/// follows at the second expiry unless the image confirms and pets first.
+#[cortex_m_rt::exception]
+unsafe fn NonMaskableInt() {}
