@@ -1,0 +1,87 @@
+//! The page's firmware update as a person uses it: Debian's chromium,
+//! driven by playwright-core (tests/browser/update.js), on the page of the
+//! mps2-an386 image with `update` in QEMU (slirp, 127.0.0.1), under its
+//! bootloader. A forged file is refused and the page says why; the signed
+//! file of the next version is sent with its progress shown and taken; the
+//! device restarts into it and the page shows it running, the old version
+//! as the previous. This test checks the device behind the page again:
+//! the API, Modbus (tokio-modbus), the boot state.
+//!
+//! Needs what tests/tests/qemu_update.rs needs, the second image
+//! ([`qemu::UPDATE_NEXT_BUILD_COMMAND`]), node, chromium and `npm ci` in
+//! tests/browser (scripts/setup installs them); fails loudly without any.
+//! Screenshots: target/artifacts/update.png, update-failure.png.
+
+use std::process::Stdio;
+
+use serde_json::Value;
+use system_tests::browser::{BROWSER_TIMEOUT, artifacts, browser_dir, require_browser, run_within};
+use system_tests::qemu::{self, ACTIVE, BOOTLOADER_STATE, NO_ROBOT, Qemu, ROBOT_REGISTERS};
+use system_tests::update::{BOOT_MAGIC, api_status, signed, state_word, test_dir};
+use tokio_modbus::client::Reader as _;
+
+#[test]
+fn the_page_uploads_an_update_with_its_progress_and_shows_the_new_version() {
+    require_browser();
+    let (bootloader, image) = qemu::update_images();
+    let (next, new_version) = qemu::update_next_image();
+    let old_version = qemu::firmware_version().map(|n| n.to_string()).join(".");
+    let dir = test_dir("page-update");
+    let state = dir.join("psram.state");
+    qemu::erased_state(&state).unwrap();
+    qemu::install(&image, &state, ACTIVE);
+    let good = signed(&dir, &qemu::flat_binary(&next), &new_version);
+    let mut forged = good.clone();
+    let middle = forged.len() / 2;
+    forged[middle] ^= 0x10;
+    let (good_path, forged_path) = (dir.join("next.update"), dir.join("forged.update"));
+    std::fs::write(&good_path, &good).unwrap();
+    std::fs::write(&forged_path, &forged).unwrap();
+
+    let qemu = Qemu::slirp_booting(&bootloader, &image, &state);
+    qemu.wait_for_log("Modbus TCP server at", qemu::READY_TIMEOUT);
+    let artifacts = artifacts();
+    for old in ["update.png", "update-failure.png"] {
+        let _ = std::fs::remove_file(artifacts.join(old));
+    }
+    let mut node = std::process::Command::new("node");
+    node.current_dir(browser_dir())
+        .arg("update.js")
+        .arg(format!("http://{}/", qemu.http_addr()))
+        .arg(&artifacts)
+        .arg(&good_path)
+        .arg(&forged_path)
+        .arg(&old_version)
+        .arg(&new_version)
+        .stdin(Stdio::null());
+    let (passed, stdout, stderr) = run_within(node, BROWSER_TIMEOUT);
+    assert!(
+        passed,
+        "the update through the page failed (screenshot: {}):\n{stderr}\n{stdout}\nQEMU: {}",
+        artifacts.join("update-failure.png").display(),
+        qemu.stderr()
+    );
+    let summary: Value = stdout
+        .lines()
+        .rev()
+        .find_map(|line| serde_json::from_str(line).ok())
+        .unwrap_or_else(|| panic!("the script's summary: {stdout}"));
+    println!("browser: {summary}");
+    assert!(summary["forged"].as_str().is_some_and(|m| m.contains("signature")), "{summary}");
+    let progress: Vec<f64> = summary["progress"].as_array().unwrap().iter().filter_map(Value::as_f64).collect();
+    assert!(progress.iter().filter(|&&v| v > 0.0 && v < 1.0).count() >= 2, "progress shown in steps: {progress:?}");
+    assert_eq!(summary["after"]["Previous"], old_version.as_str(), "{summary}");
+    assert_eq!(summary["page_errors"], serde_json::json!([]));
+
+    // The device behind the page: the new version runs, confirmed, and serves.
+    assert_eq!(state_word(&state, BOOTLOADER_STATE), BOOT_MAGIC, "the new image has not confirmed itself");
+    let registers = qemu.run(|| async { qemu.connect().await.read_holding_registers(ROBOT_REGISTERS, 4).await });
+    assert_eq!(registers.unwrap().unwrap(), NO_ROBOT);
+    let status = api_status(qemu.http_addr(), std::time::Duration::from_secs(20)).expect("the API answers");
+    assert_eq!(status["device"]["firmware"], new_version.as_str(), "{status}");
+    assert_eq!(status["update"]["previous"], old_version.as_str(), "{status}");
+    let png = std::fs::read(artifacts.join("update.png")).expect("update.png");
+    assert!(png.starts_with(b"\x89PNG\r\n\x1a\n"), "update.png is a screenshot");
+    qemu.power_cut();
+    std::fs::remove_dir_all(&dir).unwrap();
+}
