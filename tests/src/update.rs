@@ -108,16 +108,27 @@ fn get_status(addr: SocketAddr) -> Option<String> {
 /// `POST /api/firmware` with `file`: the status code and the body (status
 /// 0 and what went wrong when no response came).
 pub fn upload(addr: SocketAddr, file: &[u8]) -> (u16, String) {
+    send(addr, "POST", "/api/firmware", "application/octet-stream", file)
+}
+
+/// `PUT /api/settings` with the JSON `change`: the status code and the body.
+pub fn put_settings(addr: SocketAddr, change: &str) -> (u16, String) {
+    send(addr, "PUT", "/api/settings", "application/json", change.as_bytes())
+}
+
+/// One request with `body`, answered and closed by the device: the status
+/// code and the response's body (status 0 and what went wrong when no
+/// response came).
+fn send(addr: SocketAddr, method: &str, path: &str, content_type: &str, body: &[u8]) -> (u16, String) {
     use std::io::{Read as _, Write as _};
     let mut stream = std::net::TcpStream::connect(addr).unwrap();
     stream.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
     let head = format!(
-        "POST /api/firmware HTTP/1.1\r\nHost: mbio\r\nContent-Type: application/octet-stream\r\n\
-         Content-Length: {}\r\n\r\n",
-        file.len()
+        "{method} {path} HTTP/1.1\r\nHost: mbio\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\n\r\n",
+        body.len()
     );
     stream.write_all(head.as_bytes()).unwrap();
-    stream.write_all(file).unwrap();
+    stream.write_all(body).unwrap();
     let mut response = Vec::new();
     if let Err(e) = stream.read_to_end(&mut response) {
         return (0, format!("no response: {e}"));

@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 use serde_json::json;
 use system_tests::qemu::{self, ACTIVE, BOOTLOADER_STATE, DFU, NO_ROBOT, PSRAM, Qemu, ROBOT_REGISTERS};
 use system_tests::update::{
-    BOOT_MAGIC, SWAP_MAGIC, api_status, bootloader_output, signed, state_word, test_dir, upload,
+    BOOT_MAGIC, SWAP_MAGIC, api_status, bootloader_output, put_settings, signed, state_word, test_dir, upload,
 };
 use tokio_modbus::client::Reader as _;
 use tokio_modbus::prelude::{ConformityLevel, ReadCode};
@@ -278,5 +278,64 @@ fn a_swapped_in_image_that_hangs_is_reset_by_the_watchdog_and_rolled_back() {
     assert_eq!(registers, NO_ROBOT);
     assert_eq!(boots(), 2, "a reset after the rollback\n{}", qemu.stderr());
     qemu.finish();
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The other side of the watchdog: an image on trial that is slow to
+/// confirm itself, after the watchdog's first expiry (the NMI at 15 s) but
+/// before its second (the reset at 30 s), is kept: the NMI does not stop
+/// it, and the confirmation pets the watchdog. The image is made slow by
+/// its saved settings (20 s of DHCP before the fallback address) and no
+/// network; it confirms once it has the fallback.
+#[test]
+fn an_update_that_confirms_after_the_first_expiry_is_kept() {
+    let (bootloader, image) = qemu::update_images();
+    let dir = test_dir("update-late");
+    let state = dir.join("psram.state");
+    qemu::erased_state(&state).unwrap();
+    qemu::install(&image, &state, ACTIVE);
+    let qemu = Qemu::slirp_booting(&bootloader, &image, &state);
+    qemu.wait_for_log("Modbus TCP server at", Duration::from_secs(30));
+    let (status, body) = put_settings(qemu.http_addr(), r#"{"network": {"dhcp_timeout_s": 20}}"#);
+    assert_eq!(status, 200, "{body}");
+    qemu.finish();
+    qemu::install(&image, &state, DFU);
+    let file = std::fs::OpenOptions::new().write(true).open(&state).unwrap();
+    file.write_all_at(&SWAP_MAGIC, u64::from(BOOTLOADER_STATE - PSRAM)).unwrap();
+    drop(file);
+
+    let stderr_path = dir.join("qemu.stderr");
+    let mut qemu = Command::new("timeout")
+        .args(["-k", "5", "120"])
+        .args(qemu::qemu_args(&bootloader, "none", &state))
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(&stderr_path).unwrap())
+        .spawn()
+        .unwrap();
+    let boots = || bootloader_output(&std::fs::read_to_string(&stderr_path).unwrap()).matches("boot state").count();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while boots() == 0 {
+        assert!(Instant::now() < deadline, "the bootloader did not start");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let swapped = Instant::now();
+    while state_word(&state, BOOTLOADER_STATE) != BOOT_MAGIC {
+        assert!(swapped.elapsed() < Duration::from_secs(30), "not confirmed within 30 s of the swap");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let confirmed = swapped.elapsed();
+    eprintln!("late confirmation: {:.1} s after the swap", confirmed.as_secs_f64());
+    assert!(
+        confirmed > Duration::from_secs(15),
+        "confirmed {confirmed:?} after the swap: before the NMI, nothing shown"
+    );
+    // Past the second expiry and more: the same boot, still running.
+    std::thread::sleep(Duration::from_secs(45).saturating_sub(swapped.elapsed()));
+    assert_eq!(qemu.try_wait().unwrap(), None, "QEMU ended");
+    assert_eq!(boots(), 1, "a reset after the late confirmation\n{}", std::fs::read_to_string(&stderr_path).unwrap());
+    // SAFETY: kill has no memory effects; the pid is our child's (`timeout`).
+    unsafe { libc::kill(qemu.id() as i32, libc::SIGTERM) };
+    qemu.wait().unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
 }
