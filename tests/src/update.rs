@@ -22,6 +22,83 @@ pub fn test_dir(name: &str) -> PathBuf {
     dir
 }
 
+/// A fresh state file in `dir` (erased, as a new device's flash) with
+/// `image` installed in ACTIVE, as the QEMU scripts install it.
+pub fn installed_state(dir: &Path, image: &Path) -> PathBuf {
+    let state = dir.join("psram.state");
+    qemu::erased_state(&state).unwrap();
+    qemu::install(image, &state, qemu::ACTIVE);
+    state
+}
+
+/// Writes `bytes` at `address` (in the PSRAM) of the state file `state`.
+pub fn write_at(state: &Path, address: u32, bytes: &[u8]) {
+    let file = std::fs::OpenOptions::new().write(true).open(state).unwrap();
+    file.write_all_at(bytes, u64::from(address - PSRAM)).unwrap();
+}
+
+/// Arms the swap to what DFU holds, as `adapter::update` does once an
+/// upload is checked: embassy-boot's swap magic in the boot state.
+pub fn arm(state: &Path) {
+    write_at(state, qemu::BOOTLOADER_STATE, &SWAP_MAGIC);
+}
+
+/// The bootloader and its image in QEMU with no network at all (the
+/// image's DHCP gets no answer), its stderr in a file: for the tests that
+/// only watch the bootloader and the state file.
+pub struct Offline {
+    child: std::process::Child,
+    stderr: PathBuf,
+}
+
+impl Offline {
+    /// Boots `bootloader` on `state`; QEMU is ended after `limit` at the latest.
+    pub fn boot(bootloader: &Path, state: &Path, dir: &Path, limit: Duration) -> Self {
+        let stderr = dir.join("qemu.stderr");
+        let child = Command::new("timeout")
+            .args(["-k", "5", &limit.as_secs().to_string()])
+            .args(qemu::qemu_args(bootloader, "none", state))
+            .stdin(std::process::Stdio::null())
+            .stdout(std::process::Stdio::null())
+            .stderr(std::fs::File::create(&stderr).unwrap())
+            .spawn()
+            .unwrap();
+        Self { child, stderr }
+    }
+
+    /// The bootloader's output so far.
+    pub fn output(&self) -> String {
+        bootloader_output(&std::fs::read_to_string(&self.stderr).unwrap_or_default())
+    }
+
+    /// How many times the bootloader has started (one line each).
+    pub fn boots(&self) -> usize {
+        self.output().matches("mps2-an386-boot: boot state").count()
+    }
+
+    /// Waits until the bootloader has started `count` times; panics after `timeout`.
+    pub fn wait_for_boots(&self, count: usize, timeout: Duration) {
+        let deadline = std::time::Instant::now() + timeout;
+        while self.boots() < count {
+            assert!(std::time::Instant::now() < deadline, "{} boots of {count} after {timeout:?}", self.boots());
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    /// Whether QEMU still runs.
+    pub fn running(&mut self) -> bool {
+        self.child.try_wait().unwrap().is_none()
+    }
+
+    /// Ends QEMU (SIGTERM, as a power cut the guest does not see coming).
+    pub fn stop(mut self) {
+        // SAFETY: kill has no memory effects; the pid is our child's
+        // (`timeout`, which passes SIGTERM on to QEMU).
+        unsafe { libc::kill(self.child.id() as i32, libc::SIGTERM) };
+        self.child.wait().unwrap();
+    }
+}
+
 /// The 4-byte word at `address` (in the PSRAM) of the state file `state`.
 pub fn state_word(state: &Path, address: u32) -> [u8; 4] {
     let mut word = [0u8; 4];

@@ -16,8 +16,8 @@ use std::process::Stdio;
 
 use serde_json::Value;
 use system_tests::browser::{BROWSER_TIMEOUT, artifacts, browser_dir, require_browser, run_within};
-use system_tests::qemu::{self, ACTIVE, BOOTLOADER_STATE, NO_ROBOT, Qemu, ROBOT_REGISTERS};
-use system_tests::update::{BOOT_MAGIC, api_status, signed, state_word, test_dir};
+use system_tests::qemu::{self, BOOTLOADER_STATE, NO_ROBOT, Qemu, ROBOT_REGISTERS};
+use system_tests::update::{BOOT_MAGIC, api_status, installed_state, signed, state_word, test_dir};
 use tokio_modbus::client::Reader as _;
 
 #[test]
@@ -27,9 +27,7 @@ fn the_page_uploads_an_update_with_its_progress_and_shows_the_new_version() {
     let (next, new_version) = qemu::update_next_image();
     let old_version = qemu::firmware_version().map(|n| n.to_string()).join(".");
     let dir = test_dir("page-update");
-    let state = dir.join("psram.state");
-    qemu::erased_state(&state).unwrap();
-    qemu::install(&image, &state, ACTIVE);
+    let state = installed_state(&dir, &image);
     let good = signed(&dir, &qemu::flat_binary(&next), &new_version);
     let mut forged = good.clone();
     let middle = forged.len() / 2;

@@ -13,15 +13,15 @@
 //! One test uploads a signed file of another version through the API, as a
 //! user would, and reads the versions in 0x2B and the status.
 
-use std::os::unix::fs::FileExt as _;
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use serde_json::json;
-use system_tests::qemu::{self, ACTIVE, BOOTLOADER_STATE, DFU, NO_ROBOT, PSRAM, Qemu, ROBOT_REGISTERS};
+use system_tests::qemu::{self, ACTIVE, BOOTLOADER_STATE, DFU, NO_ROBOT, Qemu, ROBOT_REGISTERS};
 use system_tests::update::{
-    BOOT_MAGIC, SWAP_MAGIC, api_status, bootloader_output, put_settings, signed, state_word, test_dir, upload,
+    BOOT_MAGIC, Offline, SWAP_MAGIC, api_status, arm, bootloader_output, installed_state, put_settings, signed,
+    state_word, test_dir, upload, write_at,
 };
 use tokio_modbus::client::Reader as _;
 use tokio_modbus::prelude::{ConformityLevel, ReadCode};
@@ -44,21 +44,16 @@ fn boot_and_read(bootloader: &Path, image: &Path, state: &Path, wait_for: &str) 
 fn the_bootloader_starts_the_image_and_swaps_in_an_armed_update() {
     let (bootloader, image) = qemu::update_images();
     let dir = test_dir("update");
-    let state = dir.join("psram.state");
-    qemu::erased_state(&state).unwrap();
-
     // First boot: the image as the QEMU scripts install it, in ACTIVE.
-    qemu::install(&image, &state, ACTIVE);
+    let state = installed_state(&dir, &image);
     let stderr = boot_and_read(&bootloader, &image, &state, "update: boot state Confirmed");
     assert!(stderr.contains("mps2-an386-boot: boot state Boot"), "{stderr}");
 
     // An update armed as adapter::update arms one, with ACTIVE erased so
     // that only the swap can bring an image there.
-    let file = std::fs::OpenOptions::new().write(true).open(&state).unwrap();
-    file.write_all_at(&vec![0xff; qemu::ACTIVE_LEN as usize], u64::from(ACTIVE - PSRAM)).unwrap();
+    write_at(&state, ACTIVE, &vec![0xff; qemu::ACTIVE_LEN as usize]);
     qemu::install(&image, &state, DFU);
-    file.write_all_at(&SWAP_MAGIC, u64::from(BOOTLOADER_STATE - PSRAM)).unwrap();
-    drop(file);
+    arm(&state);
     let stderr = boot_and_read(&bootloader, &image, &state, "update: this image is confirmed");
     assert!(stderr.contains("mps2-an386-boot: boot state Swap"), "{stderr}");
     assert_eq!(state_word(&state, BOOTLOADER_STATE), BOOT_MAGIC, "the confirmation is not in the boot state");
@@ -95,35 +90,17 @@ fn the_bootloader_does_not_jump_into_an_empty_active() {
 fn an_update_that_does_not_confirm_is_rolled_back() {
     let (bootloader, image) = qemu::update_images();
     let dir = test_dir("update-rollback");
-    let state = dir.join("psram.state");
-    qemu::erased_state(&state).unwrap();
-    qemu::install(&image, &state, ACTIVE);
+    let state = installed_state(&dir, &image);
     qemu::install(&image, &state, DFU);
-    let file = std::fs::OpenOptions::new().write(true).open(&state).unwrap();
-    file.write_all_at(&SWAP_MAGIC, u64::from(BOOTLOADER_STATE - PSRAM)).unwrap();
-    drop(file);
+    arm(&state);
 
     // No network: the image waits 5 s for DHCP before its fallback address,
     // so it cannot confirm before QEMU is stopped half a second after the swap.
-    let stderr_path = dir.join("qemu.stderr");
-    let mut qemu = Command::new("timeout")
-        .args(["-k", "5", "60"])
-        .args(qemu::qemu_args(&bootloader, "none", &state))
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(&stderr_path).unwrap())
-        .spawn()
-        .unwrap();
-    let deadline = std::time::Instant::now() + Duration::from_secs(20);
-    while !bootloader_output(&std::fs::read_to_string(&stderr_path).unwrap()).contains("boot state Swap") {
-        assert!(std::time::Instant::now() < deadline, "the bootloader did not swap");
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    let qemu = Offline::boot(&bootloader, &state, &dir, Duration::from_secs(60));
+    qemu.wait_for_boots(1, Duration::from_secs(20));
+    assert!(qemu.output().contains("boot state Swap"), "the bootloader did not swap: {}", qemu.output());
     std::thread::sleep(Duration::from_millis(500));
-    // SAFETY: kill has no memory effects; the pid is our child's (`timeout`,
-    // which passes SIGTERM on to QEMU).
-    unsafe { libc::kill(qemu.id() as i32, libc::SIGTERM) };
-    qemu.wait().unwrap();
+    qemu.stop();
     assert_eq!(state_word(&state, BOOTLOADER_STATE), SWAP_MAGIC, "confirmed before the power cut");
 
     // The next boot reverts; the image that runs knows it.
@@ -142,9 +119,7 @@ fn an_update_uploaded_through_the_api_is_checked_swapped_in_and_confirmed() {
     let (next, next_version) = qemu::update_next_image();
     let old_version = qemu::firmware_version().map(|n| n.to_string()).join(".");
     let dir = test_dir("update-upload");
-    let state = dir.join("psram.state");
-    qemu::erased_state(&state).unwrap();
-    qemu::install(&image, &state, ACTIVE);
+    let state = installed_state(&dir, &image);
     let file = signed(&dir, &qemu::flat_binary(&next), &next_version);
     let mut forged = file.clone();
     let last = forged.len() - 1;
@@ -234,13 +209,9 @@ fn a_swapped_in_image_that_hangs_is_reset_by_the_watchdog_and_rolled_back() {
     let (bootloader, image) = qemu::update_images();
     let old_version = qemu::firmware_version().map(|n| n.to_string()).join(".");
     let dir = test_dir("update-watchdog");
-    let state = dir.join("psram.state");
-    qemu::erased_state(&state).unwrap();
-    qemu::install(&image, &state, ACTIVE);
-    let file = std::fs::OpenOptions::new().write(true).open(&state).unwrap();
-    file.write_all_at(&hung_image(), u64::from(DFU - PSRAM)).unwrap();
-    file.write_all_at(&SWAP_MAGIC, u64::from(BOOTLOADER_STATE - PSRAM)).unwrap();
-    drop(file);
+    let state = installed_state(&dir, &image);
+    write_at(&state, DFU, &hung_image());
+    arm(&state);
 
     let qemu = Qemu::slirp_booting(&bootloader, &image, &state);
     let boots = || bootloader_output(&qemu.stderr()).matches("mps2-an386-boot: boot state").count();
@@ -291,34 +262,17 @@ fn a_swapped_in_image_that_hangs_is_reset_by_the_watchdog_and_rolled_back() {
 fn an_update_that_confirms_after_the_first_expiry_is_kept() {
     let (bootloader, image) = qemu::update_images();
     let dir = test_dir("update-late");
-    let state = dir.join("psram.state");
-    qemu::erased_state(&state).unwrap();
-    qemu::install(&image, &state, ACTIVE);
+    let state = installed_state(&dir, &image);
     let qemu = Qemu::slirp_booting(&bootloader, &image, &state);
     qemu.wait_for_log("Modbus TCP server at", Duration::from_secs(30));
     let (status, body) = put_settings(qemu.http_addr(), r#"{"network": {"dhcp_timeout_s": 20}}"#);
     assert_eq!(status, 200, "{body}");
     qemu.finish();
     qemu::install(&image, &state, DFU);
-    let file = std::fs::OpenOptions::new().write(true).open(&state).unwrap();
-    file.write_all_at(&SWAP_MAGIC, u64::from(BOOTLOADER_STATE - PSRAM)).unwrap();
-    drop(file);
+    arm(&state);
 
-    let stderr_path = dir.join("qemu.stderr");
-    let mut qemu = Command::new("timeout")
-        .args(["-k", "5", "120"])
-        .args(qemu::qemu_args(&bootloader, "none", &state))
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(&stderr_path).unwrap())
-        .spawn()
-        .unwrap();
-    let boots = || bootloader_output(&std::fs::read_to_string(&stderr_path).unwrap()).matches("boot state").count();
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while boots() == 0 {
-        assert!(Instant::now() < deadline, "the bootloader did not start");
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    let mut qemu = Offline::boot(&bootloader, &state, &dir, Duration::from_secs(120));
+    qemu.wait_for_boots(1, Duration::from_secs(20));
     let swapped = Instant::now();
     while state_word(&state, BOOTLOADER_STATE) != BOOT_MAGIC {
         assert!(swapped.elapsed() < Duration::from_secs(30), "not confirmed within 30 s of the swap");
@@ -332,10 +286,8 @@ fn an_update_that_confirms_after_the_first_expiry_is_kept() {
     );
     // Past the second expiry and more: the same boot, still running.
     std::thread::sleep(Duration::from_secs(45).saturating_sub(swapped.elapsed()));
-    assert_eq!(qemu.try_wait().unwrap(), None, "QEMU ended");
-    assert_eq!(boots(), 1, "a reset after the late confirmation\n{}", std::fs::read_to_string(&stderr_path).unwrap());
-    // SAFETY: kill has no memory effects; the pid is our child's (`timeout`).
-    unsafe { libc::kill(qemu.id() as i32, libc::SIGTERM) };
-    qemu.wait().unwrap();
+    assert!(qemu.running(), "QEMU ended");
+    assert_eq!(qemu.boots(), 1, "a reset after the late confirmation\n{}", qemu.output());
+    qemu.stop();
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -20,9 +20,10 @@ use std::net::{SocketAddr, TcpStream};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use system_tests::qemu::{self, ACTIVE, BOOTLOADER_STATE, NO_ROBOT, Qemu, ROBOT_REGISTERS};
+use system_tests::qemu::{self, BOOTLOADER_STATE, NO_ROBOT, Qemu, ROBOT_REGISTERS};
 use system_tests::update::{
-    BOOT_MAGIC, api_status, bootloader_output, signed, state_word, state_words_written, test_dir, upload,
+    BOOT_MAGIC, api_status, bootloader_output, installed_state, signed, state_word, state_words_written, test_dir,
+    upload,
 };
 use tokio_modbus::client::Reader as _;
 
@@ -89,11 +90,8 @@ impl Images {
 
 /// A fresh state file with the old image installed in ACTIVE.
 fn factory_state(dir: &Path) -> PathBuf {
-    let state = dir.join("psram.state");
-    qemu::erased_state(&state).unwrap();
     let (_, old) = qemu::update_images();
-    qemu::install(&old, &state, ACTIVE);
-    state
+    installed_state(dir, &old)
 }
 
 /// Boots, waits until the device answers Modbus and the API; the version
