@@ -2,9 +2,10 @@
 // by playwright-core, against the mps2-an386 image with `update` in QEMU.
 // tests/tests/qemu_page_update.rs boots it and runs this script:
 //
-//   node update.js URL ARTIFACT_DIR GOOD_FILE FORGED_FILE OLD_VERSION NEW_VERSION
+//   node update.js URL ARTIFACT_DIR GOOD_FILE OLD_VERSION NEW_VERSION [REFUSED_FILE=WORD ...]
 //
-// A forged file is refused and the page says why; the good one is sent
+// Each refused file is refused and the page says why (its message holds
+// WORD, and the running version stays); the good one is sent
 // with its progress shown, taken, and after the device's restart the page
 // shows the new version running and the old one as the previous. The
 // browser's upload is throttled (DevTools' network emulation) so that the
@@ -16,9 +17,9 @@
 const path = require('path');
 const { chromium } = require('playwright-core');
 
-const [url, artifacts, good, forged, oldVersion, newVersion] = process.argv.slice(2);
-if (!newVersion) {
-  console.error('usage: node update.js URL ARTIFACT_DIR GOOD_FILE FORGED_FILE OLD_VERSION NEW_VERSION');
+const [url, artifacts, good, oldVersion, newVersion, ...refusals] = process.argv.slice(2);
+if (!newVersion || !refusals.every((r) => r.includes('='))) {
+  console.error('usage: node update.js URL ARTIFACT_DIR GOOD_FILE OLD_VERSION NEW_VERSION [REFUSED_FILE=WORD ...]');
   process.exit(2);
 }
 
@@ -79,10 +80,17 @@ async function main() {
     summary.before = await firmware(page);
     check(summary.before.Running.startsWith(oldVersion), `running before: ${JSON.stringify(summary.before)}`);
 
-    const refused = await upload(page, forged);
-    summary.forged = refused.message;
-    check(refused.message.startsWith('Not updated') && refused.message.includes('signature'),
-      `the forged file: ${refused.message}`);
+    summary.refused = [];
+    for (const refusal of refusals) {
+      const split = refusal.lastIndexOf('=');
+      const [file, word] = [refusal.slice(0, split), refusal.slice(split + 1)];
+      const refused = await upload(page, file);
+      summary.refused.push(refused.message);
+      check(refused.message.startsWith('Not updated') && refused.message.includes(word),
+        `${path.basename(file)}: "${refused.message}" does not say "${word}"`);
+      const now = await firmware(page);
+      check(now.Running.startsWith(oldVersion), `running after ${path.basename(file)}: ${JSON.stringify(now)}`);
+    }
 
     const taken = await upload(page, good);
     summary.good = taken.message;

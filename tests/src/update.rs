@@ -138,6 +138,11 @@ pub fn bootloader_output(stderr: &str) -> String {
 /// `payload` signed for mps2-an386 as `version` with the development key,
 /// as an update file (`scripts/sign-firmware`; `dir` holds its files).
 pub fn signed(dir: &Path, payload: &[u8], version: &str) -> Vec<u8> {
+    signed_for(dir, payload, version, "mps2-an386")
+}
+
+/// [`signed`] for `board`.
+pub fn signed_for(dir: &Path, payload: &[u8], version: &str, board: &str) -> Vec<u8> {
     let bin = dir.join("app.bin");
     let out = dir.join("app.update");
     std::fs::write(&bin, payload).unwrap();
@@ -145,7 +150,7 @@ pub fn signed(dir: &Path, payload: &[u8], version: &str) -> Vec<u8> {
     let status = Command::new(root.join("scripts/sign-firmware"))
         .arg("--key")
         .arg(root.join("keys/update-dev.key"))
-        .args(["--board", "mps2-an386", "--version", version])
+        .args(["--board", board, "--version", version])
         .arg(&bin)
         .arg("-o")
         .arg(&out)

@@ -1,7 +1,8 @@
 //! The page's firmware update as a person uses it: Debian's chromium,
 //! driven by playwright-core (tests/browser/update.js), on the page of the
 //! mps2-an386 image with `update` in QEMU (slirp, 127.0.0.1), under its
-//! bootloader. A forged file is refused and the page says why; the signed
+//! bootloader. A forged file, another board's and one cut short are
+//! refused and the page says why; the signed
 //! file of the next version is sent with its progress shown and taken; the
 //! device restarts into it and the page shows it running, the old version
 //! as the previous. This test checks the device behind the page again:
@@ -17,7 +18,7 @@ use std::process::Stdio;
 use serde_json::Value;
 use system_tests::browser::{BROWSER_TIMEOUT, artifacts, browser_dir, require_browser, run_within};
 use system_tests::qemu::{self, BOOTLOADER_STATE, NO_ROBOT, Qemu, ROBOT_REGISTERS};
-use system_tests::update::{BOOT_MAGIC, api_status, installed_state, signed, state_word, test_dir};
+use system_tests::update::{BOOT_MAGIC, api_status, installed_state, signed, signed_for, state_word, test_dir};
 use tokio_modbus::client::Reader as _;
 
 #[test]
@@ -28,13 +29,27 @@ fn the_page_uploads_an_update_with_its_progress_and_shows_the_new_version() {
     let old_version = qemu::firmware_version().map(|n| n.to_string()).join(".");
     let dir = test_dir("page-update");
     let state = installed_state(&dir, &image);
-    let good = signed(&dir, &qemu::flat_binary(&next), &new_version);
+    let payload = qemu::flat_binary(&next);
+    let good = signed(&dir, &payload, &new_version);
+    // The files the page must refuse, each with the word its reason must
+    // hold: a byte changed, another board's, and one cut short.
     let mut forged = good.clone();
     let middle = forged.len() / 2;
     forged[middle] ^= 0x10;
-    let (good_path, forged_path) = (dir.join("next.update"), dir.join("forged.update"));
+    let other_board = signed_for(&dir, &payload, &new_version, "nucleo-f429zi");
+    let cut_off = good[..good.len() - 1000].to_vec();
+    let good_path = dir.join("next.update");
     std::fs::write(&good_path, &good).unwrap();
-    std::fs::write(&forged_path, &forged).unwrap();
+    let mut refused = Vec::new();
+    for (name, file, word) in [
+        ("forged", &forged, "signature"),
+        ("other-board", &other_board, "another board"),
+        ("cut-off", &cut_off, "cut off"),
+    ] {
+        let path = dir.join(format!("{name}.update"));
+        std::fs::write(&path, file).unwrap();
+        refused.push(format!("{}={word}", path.display()));
+    }
 
     let qemu = Qemu::slirp_booting(&bootloader, &image, &state);
     qemu.wait_for_log("Modbus TCP server at", qemu::READY_TIMEOUT);
@@ -48,9 +63,9 @@ fn the_page_uploads_an_update_with_its_progress_and_shows_the_new_version() {
         .arg(format!("http://{}/", qemu.http_addr()))
         .arg(&artifacts)
         .arg(&good_path)
-        .arg(&forged_path)
         .arg(&old_version)
         .arg(&new_version)
+        .args(&refused)
         .stdin(Stdio::null());
     let (passed, stdout, stderr) = run_within(node, BROWSER_TIMEOUT);
     assert!(
@@ -65,7 +80,11 @@ fn the_page_uploads_an_update_with_its_progress_and_shows_the_new_version() {
         .find_map(|line| serde_json::from_str(line).ok())
         .unwrap_or_else(|| panic!("the script's summary: {stdout}"));
     println!("browser: {summary}");
-    assert!(summary["forged"].as_str().is_some_and(|m| m.contains("signature")), "{summary}");
+    let reasons = summary["refused"].as_array().expect("the refusals seen");
+    assert_eq!(reasons.len(), 3, "{summary}");
+    for (reason, word) in reasons.iter().zip(["signature", "another board", "cut off"]) {
+        assert!(reason.as_str().is_some_and(|m| m.starts_with("Not updated") && m.contains(word)), "{summary}");
+    }
     let progress: Vec<f64> = summary["progress"].as_array().unwrap().iter().filter_map(Value::as_f64).collect();
     assert!(progress.iter().filter(|&&v| v > 0.0 && v < 1.0).count() >= 2, "progress shown in steps: {progress:?}");
     assert_eq!(summary["after"]["Previous"], old_version.as_str(), "{summary}");
