@@ -35,6 +35,10 @@ struct State {
     /// The firmware update's state, once the board has set it.
     #[cfg(feature = "update")]
     update: Option<crate::update::Status>,
+    /// Its previous version as Read Device Identification's object 0x80
+    /// sends it, written when the state is set rather than at each request.
+    #[cfg(feature = "update")]
+    previous_text: heapless::String<{ crate::server::identity::MAX_VERSION_LEN }>,
 }
 
 /// The shared device: the image behind a blocking mutex (held while one
@@ -65,6 +69,8 @@ impl<'a> Device<'a> {
             monitor: watchdog::Monitor::new(Instant::now()),
             #[cfg(feature = "update")]
             update: None,
+            #[cfg(feature = "update")]
+            previous_text: heapless::String::new(),
         };
         Self { state: Mutex::new(RefCell::new(state)), outputs, model, stats: Stats::new() }
     }
@@ -101,7 +107,11 @@ impl<'a> Device<'a> {
     /// Identification has the previous firmware's object (0x80).
     #[cfg(feature = "update")]
     pub fn set_firmware_update(&self, status: crate::update::Status) {
-        self.state.lock(|state| state.borrow_mut().update = Some(status));
+        self.state.lock(|state| {
+            let state = &mut *state.borrow_mut();
+            state.update = Some(status);
+            state.previous_text = status.previous_text();
+        });
     }
 
     /// Changes the update's state (a confirmation, an upload armed), once set.
@@ -122,17 +132,15 @@ impl<'a> Device<'a> {
     /// named `name`; drives the outputs at once if the request changed them,
     /// feeds the watchdog and counts.
     pub fn respond(&self, frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], policy: &Policy, name: &Name) -> Outcome {
-        // The previous firmware's version, once the board has set the update's state.
-        #[cfg(feature = "update")]
-        let previous = self.firmware_update().map(|update| update.previous_text());
-        #[cfg(feature = "update")]
-        let previous_firmware = previous.as_ref().map(|text| text.as_bytes());
-        #[cfg(not(feature = "update"))]
-        let previous_firmware = None;
-        let identity = Identity { model: self.model, name, previous_firmware };
-        let context = Context { identity, stats: &self.stats };
         let outcome = self.state.lock(|state| {
             let state = &mut *state.borrow_mut();
+            // The previous firmware's object, once the board has set the update's state.
+            #[cfg(feature = "update")]
+            let previous_firmware = state.update.map(|_| state.previous_text.as_bytes());
+            #[cfg(not(feature = "update"))]
+            let previous_firmware = None;
+            let identity = Identity { model: self.model, name, previous_firmware };
+            let context = Context { identity, stats: &self.stats };
             let watching = state.watchdog.timeout.is_some();
             let outcome = handler::respond(frame, reply, &mut state.image, policy, &context);
             if let Outcome::Reply { written, exception, .. } = outcome {
