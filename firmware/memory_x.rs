@@ -1,5 +1,5 @@
 // A memory map's regions, read by the boards' build scripts (`include!`d
-// by firmware/nucleo-f429zi/build.rs and firmware/mps2-an386-boot/build.rs:
+// by the build scripts of firmware/nucleo-f429zi, nucleo-f429zi-boot and mps2-an386-boot:
 // a build script cannot depend on a crate of the workspace it builds).
 
 /// ORIGIN and LENGTH of the MEMORY region `name`, from its line

@@ -44,6 +44,12 @@ const IMAGE_RAM: core::ops::RangeInclusive<u32> = 0x2000_0000..=0x2040_0000;
 /// The copy buffer: a divisor of the 4 KiB page and a multiple of the word.
 const COPY_LEN: usize = 1024;
 
+/// The signature check this bootloader serves to the image it starts
+/// (update_image::service), where the image looks for it (memory.x).
+#[used]
+#[unsafe(link_section = ".boot_services")]
+static SERVICES: update_image::service::Services = update_image::service::Services::new();
+
 #[entry]
 fn main() -> ! {
     match prepare_boot() {

@@ -18,7 +18,9 @@ use core::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use adapter::device::Device;
 use adapter::storage::flash::RuleFlash;
-use adapter::update::{self, BootState, Config, ImageLayout, Status, Updater};
+use adapter::update::boot::{self, Trial};
+use adapter::update::image::{self, service};
+use adapter::update::{self, Config, ImageLayout, SignatureError, Updater};
 use embassy_net::Stack;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::mutex::Mutex;
@@ -92,7 +94,7 @@ pub fn updater() -> Option<&'static SharedUpdater> {
     let max_len = u32::try_from(active_len).ok()?;
     static ALIGNED: StaticCell<[u8; update::MAX_STATE_WORD]> = StaticCell::new();
     let aligned = ALIGNED.try_init([0; update::MAX_STATE_WORD])?;
-    let config = Config::new(crate::MODEL, max_len);
+    let config = Config::new(crate::MODEL, max_len, bootloader_check);
     let updater = match Updater::new(RuleFlash::new(dfu), RuleFlash::new(state), aligned, config) {
         Ok(updater) => updater,
         Err(e) => {
@@ -106,6 +108,25 @@ pub fn updater() -> Option<&'static SharedUpdater> {
     CAPACITY.store(updater.capacity(), Ordering::Relaxed);
     UPDATER.init(Mutex::new(updater)).ok()?;
     UPDATER.try_get()
+}
+
+/// The signature check, in the bootloader (update_image::service): its
+/// code is in ZBT SSRAM1, which QEMU loads at every start and the image
+/// never writes.
+fn bootloader_check(
+    public_key: &[u8; image::PUBLIC_KEY_LEN],
+    digest: &[u8; image::DIGEST_LEN],
+    signature: &[u8; image::SIGNATURE_LEN],
+) -> Result<(), SignatureError> {
+    unsafe extern "C" {
+        static __bootloader_code_start: u8;
+        static __bootloader_code_end: u8;
+    }
+    let code = (&raw const __bootloader_code_start as usize)..(&raw const __bootloader_code_end as usize);
+    // SAFETY: the bootloader's code region (memory-update.x) is readable
+    // SSRAM the image places nothing in, and a table with the service's
+    // magic there is the bootloader's own.
+    unsafe { service::check_in(code, public_key, digest, signature) }
 }
 
 /// The updater, once [`updater`] has made it: the HTTP upload's too.
@@ -123,64 +144,37 @@ pub fn capacity() -> usize {
 
 static CAPACITY: AtomicUsize = AtomicUsize::new(0);
 
-/// Logs the boot state and sets it on the device with the other image's version,
-/// then confirms an image on trial once the network has its address (the
-/// Modbus listeners are spawned before this runs).
+/// Whether the image is on trial: [`pet_loop`] pets the watchdog once it
+/// is not (or has confirmed itself).
+pub static TRIAL: Trial = Trial::new();
+
+/// Reports the boot state and confirms an image on trial once it serves
+/// (`adapter::update::boot`), then pets the watchdog at once.
 pub async fn confirm_when_serving(
     stack: Stack<'static>,
     updater: &'static SharedUpdater,
     device: &'static Device<'static>,
 ) {
-    {
-        let mut updater = updater.lock().await;
-        match updater.boot_state().await {
-            Ok(state) => {
-                let previous = updater.other_image(layout()).await.unwrap_or(None);
-                let capacity = u32::try_from(updater.capacity()).unwrap_or(u32::MAX);
-                defmt::info!("update: boot state {}, previous firmware {}", state, previous);
-                device.set_firmware_update(Status { state, previous, capacity });
-                // On trial the watchdog runs out unless the image confirms.
-                PETTING.store(state != BootState::Trial, Ordering::Relaxed);
-            }
-            Err(e) => {
-                // Whether this is a trial cannot be told: a reset every
-                // 30 s would not make it better.
-                defmt::warn!("update: boot state unreadable: {}", e);
-                keep_petting();
-            }
-        }
-    }
-    stack.wait_config_up().await;
-    match updater.lock().await.confirm().await {
-        Ok(true) => {
-            device.set_firmware_update_state(BootState::Confirmed);
-            PETTING.store(true, Ordering::Relaxed);
-            crate::watchdog::pet();
-            defmt::info!("update: this image is confirmed");
-        }
-        Ok(false) => {}
-        Err(e) => defmt::error!("update: confirmation failed: {}", e),
+    boot::confirm_when_serving(stack, updater, device, layout(), &TRIAL).await;
+    if TRIAL.settled() {
+        crate::watchdog::pet();
     }
 }
-
-/// Whether the image pets the bootloader's watchdog: once the boot state is
-/// read and is not a trial, or once the image on trial confirmed itself.
-static PETTING: AtomicBool = AtomicBool::new(false);
 
 /// Makes [`pet_loop`] pet the watchdog from now on whatever the boot
-/// state: when the image cannot tell it (no updater, no boot state).
+/// state: when the image cannot tell it (no updater).
 pub fn keep_petting() {
-    PETTING.store(true, Ordering::Relaxed);
+    TRIAL.settle();
 }
 
-/// Pets the watchdog every [`crate::watchdog::PET_INTERVAL_MS`] while
-/// [`PETTING`] says so. Before the boot state is known, and on trial until
+/// Pets the watchdog every [`crate::watchdog::PET_INTERVAL_MS`] once
+/// [`TRIAL`] is settled. Before the boot state is known, and on trial until
 /// the confirmation, it does not: the bootloader's watchdog expires
 /// [`crate::watchdog::EXPIRY_S`] after the start (an NMI, [`NonMaskableInt`])
 /// and resets the board [`crate::watchdog::TRIAL_LIMIT_S`] after the start.
 pub async fn pet_loop() -> ! {
     loop {
-        if PETTING.load(Ordering::Relaxed) {
+        if TRIAL.settled() {
             crate::watchdog::pet();
         }
         embassy_time::Timer::after_millis(crate::watchdog::PET_INTERVAL_MS).await;

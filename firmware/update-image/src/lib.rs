@@ -32,6 +32,7 @@
 
 use core::fmt;
 
+#[cfg(feature = "verify")]
 use ed25519_dalek::{Signature, VerifyingKey};
 use sha2_512::{Digest as _, Sha512};
 
@@ -294,6 +295,7 @@ impl Header {
 
     /// Checks [`Self::signature`] over `digest` (of this header and the
     /// payload) against `public_key`.
+    #[cfg(feature = "verify")]
     pub fn verify(&self, public_key: &[u8; PUBLIC_KEY_LEN], digest: &[u8; DIGEST_LEN]) -> Result<(), SignatureError> {
         verify(public_key, digest, &self.signature)
     }
@@ -331,6 +333,9 @@ pub enum SignatureError {
     PublicKey,
     /// The signature is not this key's over this digest.
     Mismatch,
+    /// Nothing here checks signatures: the image found no bootloader
+    /// serving the check ([`service`]).
+    Unavailable,
 }
 
 impl fmt::Display for SignatureError {
@@ -338,14 +343,24 @@ impl fmt::Display for SignatureError {
         match self {
             Self::PublicKey => f.write_str("the public key is not valid"),
             Self::Mismatch => f.write_str("the signature does not match"),
+            Self::Unavailable => f.write_str("the bootloader offers no signature check"),
         }
     }
 }
 
 impl core::error::Error for SignatureError {}
 
+/// A signature check: [`verify`] where the crate carries it, or a
+/// bootloader's ([`service::Service::verify`]) in an image that does not.
+pub type Check = fn(
+    public_key: &[u8; PUBLIC_KEY_LEN],
+    digest: &[u8; DIGEST_LEN],
+    signature: &[u8; SIGNATURE_LEN],
+) -> Result<(), SignatureError>;
+
 /// Checks `signature` over `digest` against `public_key` (ed25519, strict:
 /// small-order keys and non-canonical signatures are refused).
+#[cfg(feature = "verify")]
 pub fn verify(
     public_key: &[u8; PUBLIC_KEY_LEN],
     digest: &[u8; DIGEST_LEN],
@@ -355,6 +370,8 @@ pub fn verify(
     let signature = Signature::from_bytes(signature);
     key.verify_strict(digest, &signature).map_err(|_| SignatureError::Mismatch)
 }
+
+pub mod service;
 
 #[cfg(test)]
 mod tests;

@@ -312,6 +312,8 @@ fn update_refusal(error: crate::update::Error) -> FirmwareRefusal {
         E::TooLarge { .. } => FirmwareRefusal::Invalid("the image is too large for this device"),
         E::TooLong => FirmwareRefusal::Invalid("more bytes than the image's header says"),
         E::CutOff { .. } => FirmwareRefusal::Invalid("the upload was cut off"),
+        // Under a bootloader that serves no signature check: no update can be taken.
+        E::Signature(crate::update::SignatureError::Unavailable) => FirmwareRefusal::Unsupported,
         E::Signature(_) => FirmwareRefusal::Invalid("the image's signature is not valid"),
         E::Armed => FirmwareRefusal::Invalid("an update is armed already and installs at the next reboot"),
         E::OnTrial => FirmwareRefusal::Invalid("the running firmware is on trial and not yet confirmed"),

@@ -667,6 +667,26 @@ mod firmware {
         bytes
     }
 
+    /// What the upload's answer is for each refusal of the core: the
+    /// image's faults are 400s with their reason; no signature check in
+    /// the bootloader (the board can take no update) is 501, as on a
+    /// board without updates.
+    #[test]
+    fn refusals_of_the_core_map_to_answers() {
+        use crate::update::{Error, SignatureError};
+        let invalid = |error| match super::super::update_refusal(error) {
+            FirmwareRefusal::Invalid(reason) => reason,
+            other => panic!("{other:?}"),
+        };
+        assert_eq!(invalid(Error::Signature(SignatureError::Mismatch)), "the image's signature is not valid");
+        assert_eq!(invalid(Error::TooLong), "more bytes than the image's header says");
+        assert_eq!(
+            super::super::update_refusal(Error::Signature(SignatureError::Unavailable)),
+            FirmwareRefusal::Unsupported
+        );
+        assert_eq!(super::super::update_refusal(Error::Config), FirmwareRefusal::Storage);
+    }
+
     #[test]
     fn the_status_says_the_update_state_the_previous_version_and_the_capacity() {
         use crate::update::{BootState, Status};

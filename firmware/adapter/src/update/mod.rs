@@ -45,6 +45,8 @@ use core::fmt;
 use embassy_boot::{FirmwareState, FirmwareUpdaterError, State};
 use embedded_storage_async::nor_flash::{NorFlash, NorFlashError, NorFlashErrorKind};
 
+pub mod boot;
+
 pub use update_image::{self as image, Board, FormatError, HEADER_LEN, Header, SignatureError, Version};
 
 // PUBLIC_KEY and DEVELOPMENT_KEY, from the key file build.rs read.
@@ -130,6 +132,8 @@ impl Error {
     /// Whose fault the error is.
     pub const fn kind(&self) -> ErrorKind {
         match self {
+            // No check to run: the device's fault, not the image's.
+            Self::Signature(SignatureError::Unavailable) => ErrorKind::Device,
             Self::Format(_)
             | Self::WrongBoard(_)
             | Self::TooLarge { .. }
@@ -150,6 +154,9 @@ impl fmt::Display for Error {
             Self::TooLarge { len, max } => write!(f, "the image is too large: {len} bytes, at most {max}"),
             Self::TooLong => f.write_str("more bytes than the image's header says"),
             Self::CutOff { received, expected } => write!(f, "the upload was cut off: {received} of {expected} bytes"),
+            Self::Signature(SignatureError::Unavailable) => {
+                f.write_str("the signature cannot be checked: the bootloader offers no signature check")
+            }
             Self::Signature(e) => write!(f, "the image's signature is not valid: {e}"),
             Self::NotStarted => f.write_str("no upload in progress"),
             Self::Armed => f.write_str("an update is armed and installs at the next reboot"),
@@ -196,7 +203,7 @@ pub struct Accepted {
 }
 
 /// What the updater checks images against.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug)]
 pub struct Config<'a> {
     /// This board's id (its crate's name): images for another are refused.
     pub board: &'a str,
@@ -204,12 +211,16 @@ pub struct Config<'a> {
     pub max_len: u32,
     /// The key images must be signed with.
     pub public_key: [u8; image::PUBLIC_KEY_LEN],
+    /// What checks the signature: on the boards, the bootloader's check
+    /// ([`image::service`]), which the image does not carry itself.
+    pub check: image::Check,
 }
 
 impl<'a> Config<'a> {
-    /// Images for `board` of at most `max_len` bytes, signed for [`PUBLIC_KEY`].
-    pub const fn new(board: &'a str, max_len: u32) -> Self {
-        Self { board, max_len, public_key: PUBLIC_KEY }
+    /// Images for `board` of at most `max_len` bytes, signed for
+    /// [`PUBLIC_KEY`] as `check` finds.
+    pub const fn new(board: &'a str, max_len: u32, check: image::Check) -> Self {
+        Self { board, max_len, public_key: PUBLIC_KEY, check }
     }
 }
 
@@ -245,6 +256,7 @@ pub struct Updater<'d, DFU: NorFlash, STATE: NorFlash> {
     board: Board,
     max_len: u32,
     public_key: [u8; image::PUBLIC_KEY_LEN],
+    check: image::Check,
     upload: Upload,
     /// The header as it arrives, then the payload's next block; read-back space.
     block: [u8; BLOCK_LEN],
@@ -287,6 +299,7 @@ impl<'d, DFU: NorFlash, STATE: NorFlash> Updater<'d, DFU, STATE> {
             board,
             max_len: config.max_len,
             public_key: config.public_key,
+            check: config.check,
             upload: Upload::Idle,
             block: [0xff; BLOCK_LEN],
         })
@@ -474,7 +487,7 @@ impl<'d, DFU: NorFlash, STATE: NorFlash> Updater<'d, DFU, STATE> {
             self.flush(&mut r).await?;
         }
         let digest = self.digest_dfu(&header).await?;
-        header.verify(&self.public_key, &digest).map_err(Error::Signature)?;
+        (self.check)(&self.public_key, &digest, &header.signature).map_err(Error::Signature)?;
         self.state.mark_updated().await?;
         Ok(Accepted { version: header.version, len: header.payload_len })
     }

@@ -48,7 +48,7 @@ impl Bench {
 
     /// The running image's updater, with `key` trusted.
     fn updater(&mut self, key: [u8; 32]) -> Updater<'_, Flash<'_>, Flash<'_>> {
-        let config = Config { board: BOARD, max_len: ACTIVE_LEN as u32, public_key: key };
+        let config = Config { board: BOARD, max_len: ACTIVE_LEN as u32, public_key: key, check: image::verify };
         Updater::new(Flash::new(&mut self.dfu), Flash::new(&mut self.state), &mut self.aligned, config).unwrap()
     }
 
@@ -192,7 +192,8 @@ fn assert_refused_before_writing(file: &[u8], expected: Error) {
     let mut bench = Bench::new();
     {
         let mut dfu = Flash::new(&mut bench.dfu);
-        let config = Config { board: BOARD, max_len: ACTIVE_LEN as u32, public_key: public_key() };
+        let config =
+            Config { board: BOARD, max_len: ACTIVE_LEN as u32, public_key: public_key(), check: image::verify };
         {
             let mut updater = Updater::new(&mut dfu, Flash::new(&mut bench.state), &mut bench.aligned, config).unwrap();
             assert_eq!(block_on(upload(&mut updater, file, 100)), Err(expected));
@@ -326,7 +327,7 @@ fn partitions_that_do_not_fit_are_a_config_error() {
     let mut bench = Bench::new();
     let key = public_key();
     let mut short = [0u8; WORD - 1];
-    let good = Config { board: BOARD, max_len: ACTIVE_LEN as u32, public_key: key };
+    let good = Config { board: BOARD, max_len: ACTIVE_LEN as u32, public_key: key, check: image::verify };
     let cases = [(good, &mut short[..]), (Config { board: "MPS2", ..good }, &mut bench.aligned[..])];
     for (config, aligned) in cases {
         let updater = Updater::new(Flash::new(&mut bench.dfu), Flash::new(&mut bench.state), aligned, config);
@@ -355,10 +356,32 @@ fn the_built_in_key_is_the_development_key() {
 
     let mut bench = Bench::new();
     let file = image_for(BOARD, &payload(1000, 15), &key);
-    let config = Config::new(BOARD, ACTIVE_LEN as u32);
+    let config = Config::new(BOARD, ACTIVE_LEN as u32, image::verify);
     let mut updater =
         Updater::new(Flash::new(&mut bench.dfu), Flash::new(&mut bench.state), &mut bench.aligned, config).unwrap();
     assert!(block_on(upload(&mut updater, &file, 512)).is_ok());
+}
+
+/// The boards' images check signatures in their bootloader: one that
+/// serves no check leaves them refusing every upload, as the device's
+/// fault, with nothing armed.
+#[test]
+fn without_a_check_every_upload_is_refused_and_nothing_armed() {
+    fn unavailable(_: &[u8; 32], _: &[u8; 64], _: &[u8; 64]) -> Result<(), SignatureError> {
+        Err(SignatureError::Unavailable)
+    }
+    let mut bench = Bench::new();
+    let file = image_for(BOARD, &payload(3000, 9), &signing_key());
+    let config = Config { board: BOARD, max_len: ACTIVE_LEN as u32, public_key: public_key(), check: unavailable };
+    let refused = {
+        let mut updater =
+            Updater::new(Flash::new(&mut bench.dfu), Flash::new(&mut bench.state), &mut bench.aligned, config).unwrap();
+        block_on(upload(&mut updater, &file, 512)).unwrap_err()
+    };
+    assert_eq!(refused, Error::Signature(SignatureError::Unavailable));
+    assert_eq!(refused.kind(), ErrorKind::Device);
+    assert_eq!(refused.to_string(), "the signature cannot be checked: the bootloader offers no signature check");
+    bench.assert_nothing_armed();
 }
 
 #[test]
