@@ -97,7 +97,7 @@ pub struct Board {
     pub tasks: Tasks,
     /// The flash the settings are saved in (memory.x's `SETTINGS`).
     #[cfg(feature = "http")]
-    pub settings: flash::SettingsFlash,
+    pub flash: flash::Partitions,
     /// The user button was held at power-up ([`button`]): erase the settings first.
     #[cfg(feature = "http")]
     pub factory_reset: bool,
@@ -252,7 +252,7 @@ pub fn init() -> Board {
         inputs,
         tasks: Tasks { watchdog, edges, leds },
         #[cfg(feature = "http")]
-        settings: flash::settings_flash(p.FLASH),
+        flash: flash::partitions(p.FLASH),
         #[cfg(feature = "http")]
         factory_reset,
         #[cfg(feature = "http")]

@@ -143,4 +143,23 @@ impl Platform for Nucleo {
     fn link(&self) -> Option<&adapter::link::Link> {
         Some(&crate::ROBOT_LINK)
     }
+
+    #[cfg(feature = "update")]
+    fn firmware_capacity(&self) -> usize {
+        crate::update::capacity()
+    }
+
+    #[cfg(feature = "update")]
+    async fn receive_firmware<R: embedded_io_async::Read>(
+        &self,
+        body: &mut adapter::http::request::Stream<'_, R>,
+    ) -> Result<adapter::io::Version, adapter::http::FirmwareRefusal> {
+        let Some(updater) = crate::update::shared() else { return Err(adapter::http::FirmwareRefusal::Unsupported) };
+        let received = adapter::http::feed_update(&mut *updater.lock().await, body).await;
+        match &received {
+            Ok(version) => defmt::info!("update: {} received and armed; rebooting into it", version),
+            Err(refusal) => defmt::warn!("update: refused: {}", refusal),
+        }
+        received
+    }
 }

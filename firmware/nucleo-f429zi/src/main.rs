@@ -21,6 +21,8 @@ mod leds;
 mod net;
 mod pins;
 mod safety;
+#[cfg(feature = "update")]
+mod update;
 
 use adapter::device::{self, Device};
 use adapter::net::DeviceName;
@@ -85,7 +87,7 @@ async fn start(spawner: Spawner) {
     // every local live across its `.await`s in static RAM for good (the
     // board's peripherals, the settings: 2 KiB), and nothing waits meanwhile.
     #[cfg(feature = "http")]
-    let (store, loaded) = embassy_futures::block_on(http::load(board.settings, board.factory_reset));
+    let (store, loaded) = embassy_futures::block_on(http::load(board.flash.settings, board.factory_reset));
     #[cfg(feature = "http")]
     let settings: &'static Settings = {
         static IN_FORCE: StaticCell<Settings> = StaticCell::new();
@@ -139,6 +141,14 @@ async fn start(spawner: Spawner) {
     spawner.spawn(unwrap!(refresh_task(device, board.inputs)));
     #[cfg(feature = "robot-link")]
     spawner.spawn(unwrap!(robot_link_task(stack, device)));
+    #[cfg(feature = "update")]
+    match update::updater(board.flash.dfu, board.flash.state) {
+        Some(updater) => spawner.spawn(unwrap!(confirm_task(stack, updater, device))),
+        None => {
+            defmt::error!("update: no updater: this image cannot confirm itself");
+            update::settle();
+        }
+    }
     #[cfg(feature = "http")]
     {
         for _ in 0..adapter::http::MAX_HTTP_CONNECTIONS {
@@ -191,4 +201,15 @@ async fn modbus_task(stack: Stack<'static>, server: &'static ModbusServer, slot:
 #[embassy_executor::task(pool_size = adapter::http::MAX_HTTP_CONNECTIONS)]
 async fn http_task(stack: Stack<'static>, api: &'static http::Api) -> ! {
     adapter::http::listen(stack, api, adapter::http::HTTP_PORT).await
+}
+
+/// Confirms this image once it serves, when it runs on trial after a swap.
+#[cfg(feature = "update")]
+#[embassy_executor::task]
+async fn confirm_task(
+    stack: Stack<'static>,
+    updater: &'static update::SharedUpdater,
+    device: &'static Device<'static>,
+) {
+    update::confirm_when_serving(stack, updater, device).await
 }

@@ -90,10 +90,16 @@ pub fn start_watchdog(iwdg: Peri<'static, IWDG>) -> IndependentWatchdog<'static,
     watchdog
 }
 
-/// Feeds the watchdog for as long as the executor runs.
+/// Feeds the watchdog for as long as the executor runs (with `update`:
+/// and the image is not on trial past its limit, `update::keeps_feeding`).
 #[embassy_executor::task]
 pub async fn watchdog_task(mut watchdog: IndependentWatchdog<'static, IWDG>) -> ! {
     loop {
+        #[cfg(feature = "update")]
+        if !crate::update::keeps_feeding() {
+            defmt::error!("update: not confirmed in time: the watchdog resets, the bootloader rolls back");
+            core::future::pending::<()>().await;
+        }
         watchdog.pet();
         Timer::after(WATCHDOG_FEED).await;
     }

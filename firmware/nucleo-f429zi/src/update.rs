@@ -1,0 +1,120 @@
+//! Firmware update on this board (feature `update`; docs/update.md): the
+//! image runs from ACTIVE (`memory-update.x`), started by the bootloader
+//! (firmware/nucleo-f429zi-boot), and the [`Updater`] writes DFU and the
+//! boot state in bank 2 ([`flash::Partitions`]).
+//!
+//! After a swap the new image is on trial: `adapter::update::boot`
+//! confirms it once the network is up and the Modbus listeners serve. If it
+//! has not within [`TRIAL_LIMIT_S`] of its start, the watchdog's feeder
+//! stops ([`keeps_feeding`]) and the IWDG resets the MCU: the bootloader
+//! rolls back. An image that hangs before its feeder runs is reset by the
+//! bootloader's 30 s watchdog, or by its own 2 s one once started.
+//!
+//! The signature check is the bootloader's (`update_image::service`): the
+//! image does not carry ed25519's 14 KiB.
+
+use core::sync::atomic::{AtomicUsize, Ordering};
+
+use adapter::device::Device;
+use adapter::update::boot::{self, TRIAL_LIMIT_S, Trial};
+use adapter::update::image::{self, service};
+use adapter::update::{self, Config, ImageLayout, SignatureError, Updater};
+use embassy_net::Stack;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::mutex::Mutex;
+use embassy_sync::once_lock::OnceLock;
+use embassy_time::Instant;
+use static_cell::StaticCell;
+
+use crate::flash::{self, ACTIVE_LEN, ACTIVE_START, BOOTLOADER_LEN, BOOTLOADER_START};
+
+/// The updater over DFU and the boot state.
+pub type BoardUpdater = Updater<'static, flash::DfuFlash, flash::StateFlash>;
+/// Shared by the confirmation and the HTTP upload.
+pub type SharedUpdater = Mutex<CriticalSectionRawMutex, BoardUpdater>;
+
+/// This image's record: its version, where every image for this board has
+/// it (the `.image_info` section of memory-update.x).
+#[used]
+#[unsafe(link_section = ".image_info")]
+static IMAGE_INFO: [u8; update::IMAGE_INFO_LEN] = update::image_info(adapter::VERSION);
+
+/// embassy-boot's swap page: the largest erase size of ACTIVE and DFU.
+const PAGE: u32 = 128 * 1024;
+
+/// Where the records are: this image's record's offset from ACTIVE's start.
+fn layout() -> ImageLayout {
+    let offset = (&raw const IMAGE_INFO as usize).saturating_sub(ACTIVE_START as usize);
+    ImageLayout { info_offset: u32::try_from(offset).unwrap_or(u32::MAX), page: PAGE }
+}
+
+/// The signature check, in the bootloader's flash (sectors 0-3), which
+/// the image never writes.
+fn bootloader_check(
+    public_key: &[u8; image::PUBLIC_KEY_LEN],
+    digest: &[u8; image::DIGEST_LEN],
+    signature: &[u8; image::SIGNATURE_LEN],
+) -> Result<(), SignatureError> {
+    let code = BOOTLOADER_START as usize..(BOOTLOADER_START + BOOTLOADER_LEN) as usize;
+    // SAFETY: the BOOTLOADER partition is readable flash that nothing
+    // writes while the image runs (its partitions are bank 2's), and a
+    // table with the service's magic there is the bootloader's own.
+    unsafe { service::check_in(code, public_key, digest, signature) }
+}
+
+/// The updater over the partitions, made once.
+pub fn updater(dfu: flash::DfuFlash, state: flash::StateFlash) -> Option<&'static SharedUpdater> {
+    static ALIGNED: StaticCell<[u8; update::MAX_STATE_WORD]> = StaticCell::new();
+    let aligned = ALIGNED.try_init([0; update::MAX_STATE_WORD])?;
+    let config = Config::new(crate::MODEL, ACTIVE_LEN, bootloader_check);
+    let updater = match Updater::new(dfu, state, aligned, config) {
+        Ok(updater) => updater,
+        Err(e) => {
+            defmt::error!("update: {}", e);
+            return None;
+        }
+    };
+    if update::DEVELOPMENT_KEY {
+        defmt::warn!("update: the DEVELOPMENT key is built in (keys/update-dev.pub): anyone can sign an update");
+    }
+    CAPACITY.store(updater.capacity(), Ordering::Relaxed);
+    UPDATER.init(Mutex::new(updater)).ok()?;
+    UPDATER.try_get()
+}
+
+static UPDATER: OnceLock<SharedUpdater> = OnceLock::new();
+
+/// The updater [`updater`] made, if it has: the HTTP upload's.
+pub fn shared() -> Option<&'static SharedUpdater> {
+    UPDATER.try_get()
+}
+
+/// The largest update file the updater takes (0 before it is made).
+pub fn capacity() -> usize {
+    CAPACITY.load(Ordering::Relaxed)
+}
+
+static CAPACITY: AtomicUsize = AtomicUsize::new(0);
+
+/// Whether the image is on trial.
+static TRIAL: Trial = Trial::new();
+
+/// Reports the boot state and confirms an image on trial once it serves.
+pub async fn confirm_when_serving(
+    stack: Stack<'static>,
+    updater: &'static SharedUpdater,
+    device: &'static Device<'static>,
+) {
+    boot::confirm_when_serving(stack, updater, device, layout(), &TRIAL).await;
+}
+
+/// No trial to wait for: the image has no updater to read the state with.
+pub fn settle() {
+    TRIAL.settle();
+}
+
+/// Whether the watchdog's feeder goes on: not when the image is on trial
+/// and has not confirmed itself within [`TRIAL_LIMIT_S`] of its start.
+pub fn keeps_feeding() -> bool {
+    !(TRIAL.on_trial() && Instant::now().as_secs() >= TRIAL_LIMIT_S)
+}
