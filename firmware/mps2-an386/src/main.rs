@@ -215,13 +215,14 @@ fn spawn_all(
     for slot in 0..SOCKET_POOL {
         spawner.spawn(modbus_task(stack, server, slot)?);
     }
+    // Without an updater the confirmation only settles the trial flag, so
+    // that the watchdog is petted (a reset every 30 s would not help).
     #[cfg(feature = "update")]
-    match update::updater() {
-        Some(updater) => spawner.spawn(confirm_task(stack, updater, device)?),
-        None => {
+    {
+        if !update::install() {
             defmt::error!("update: no updater: this image cannot confirm itself");
-            update::keep_petting();
         }
+        spawner.spawn(confirm_task(stack, device)?);
     }
     #[cfg(feature = "update")]
     spawner.spawn(watchdog_task()?);
@@ -304,12 +305,8 @@ async fn locate_task() -> ! {
 /// Confirms this image once it serves, when it runs on trial after a swap.
 #[cfg(feature = "update")]
 #[embassy_executor::task]
-async fn confirm_task(
-    stack: Stack<'static>,
-    updater: &'static update::SharedUpdater,
-    device: &'static Device<'static>,
-) {
-    update::confirm_when_serving(stack, updater, device).await
+async fn confirm_task(stack: Stack<'static>, device: &'static Device<'static>) {
+    update::confirm_when_serving(stack, device).await
 }
 
 /// Pets the bootloader's watchdog, unless this image is on trial.

@@ -139,7 +139,7 @@ impl Platform for Mps2 {
 
     #[cfg(feature = "update")]
     fn firmware_capacity(&self) -> usize {
-        crate::update::capacity()
+        crate::update::UPDATE.capacity()
     }
 
     #[cfg(feature = "update")]
@@ -147,14 +147,7 @@ impl Platform for Mps2 {
         &self,
         body: &mut adapter::http::request::Stream<'_, R>,
     ) -> Result<adapter::io::Version, adapter::http::FirmwareRefusal> {
-        let Some(updater) = crate::update::shared() else { return Err(adapter::http::FirmwareRefusal::Unsupported) };
-        let mut updater = updater.lock().await;
-        let received = adapter::http::feed_update(&mut updater, body).await;
-        match &received {
-            Ok(version) => defmt::info!("update: {} received and armed; rebooting into it", version),
-            Err(refusal) => defmt::warn!("update: refused: {}", refusal),
-        }
-        received
+        crate::update::UPDATE.receive(body).await
     }
 }
 

@@ -1,7 +1,7 @@
 //! Firmware update on this board (feature `update`; docs/update.md): the
 //! DFU and boot-state partitions of `memory-update.x` in the file-backed
 //! PSRAM, under the same NOR flash rules as the settings (RuleFlash: 4-byte
-//! words, 4 KiB pages), and the [`Updater`] over them; the image runs from
+//! words, 4 KiB pages), and [`UPDATE`]'s updater over them; the image runs from
 //! ACTIVE, started by the bootloader (firmware/mps2-an386-boot).
 //!
 //! After a swap the new image is on trial: [`confirm_when_serving`]
@@ -14,25 +14,22 @@
 //! table (memory-update.x): the running image reads the other image's
 //! version from DFU by it, for `/api/status` and 0x2B.
 
-use core::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use core::sync::atomic::{AtomicBool, Ordering};
 
 use adapter::device::Device;
 use adapter::storage::flash::RuleFlash;
-use adapter::update::boot::{self, Trial};
+use adapter::update::boot::BoardUpdate;
 use adapter::update::image::{self, service};
-use adapter::update::{self, Config, ImageLayout, SignatureError, Updater};
+use adapter::update::{self, Config, ImageLayout, SignatureError};
 use embassy_net::Stack;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use embassy_sync::mutex::Mutex;
-use embassy_sync::once_lock::OnceLock;
 use static_cell::StaticCell;
 
 /// DFU and the boot state: PSRAM under NOR flash rules, as the settings.
 pub type PartitionFlash = RuleFlash<'static, 4, 4096>;
-/// The updater over them.
-pub type BoardUpdater = Updater<'static, PartitionFlash, PartitionFlash>;
-/// Shared by the confirmation and (later) the HTTP upload.
-pub type SharedUpdater = Mutex<CriticalSectionRawMutex, BoardUpdater>;
+/// The updater over them, with the trial flag: the confirmation's, the
+/// HTTP upload's and [`pet_loop`]'s.
+pub static UPDATE: BoardUpdate<CriticalSectionRawMutex, PartitionFlash, PartitionFlash> = BoardUpdate::new();
 
 static TAKEN: AtomicBool = AtomicBool::new(false);
 
@@ -66,9 +63,9 @@ unsafe fn region(start: *mut u8, end: *const u8) -> &'static mut [u8] {
     unsafe { core::slice::from_raw_parts_mut(start, len) }
 }
 
-/// The updater over this board's partitions, once (`None` after, or when
-/// the partitions do not fit it).
-pub fn updater() -> Option<&'static SharedUpdater> {
+/// Makes [`UPDATE`]'s updater over this board's partitions, once; false
+/// when it cannot (made already, or the partitions do not fit it).
+pub fn install() -> bool {
     unsafe extern "C" {
         static mut __bootloader_dfu_start: u8;
         static __bootloader_dfu_end: u8;
@@ -78,7 +75,7 @@ pub fn updater() -> Option<&'static SharedUpdater> {
         static __bootloader_active_end: u8;
     }
     if TAKEN.swap(true, Ordering::AcqRel) {
-        return None;
+        return false;
     }
     // SAFETY: memory-update.x reserves these ranges of the PSRAM for DFU and
     // the boot state (no section is placed there), and the flag above hands
@@ -91,23 +88,11 @@ pub fn updater() -> Option<&'static SharedUpdater> {
     };
     let active_len =
         (&raw const __bootloader_active_end as usize).saturating_sub(&raw const __bootloader_active_start as usize);
-    let max_len = u32::try_from(active_len).ok()?;
+    let max_len = u32::try_from(active_len).unwrap_or(u32::MAX);
     static ALIGNED: StaticCell<[u8; update::MAX_STATE_WORD]> = StaticCell::new();
-    let aligned = ALIGNED.try_init([0; update::MAX_STATE_WORD])?;
+    let Some(aligned) = ALIGNED.try_init([0; update::MAX_STATE_WORD]) else { return false };
     let config = Config::new(crate::MODEL, max_len, bootloader_check);
-    let updater = match Updater::new(RuleFlash::new(dfu), RuleFlash::new(state), aligned, config) {
-        Ok(updater) => updater,
-        Err(e) => {
-            defmt::error!("update: {}", e);
-            return None;
-        }
-    };
-    if update::DEVELOPMENT_KEY {
-        defmt::warn!("update: the DEVELOPMENT key is built in (keys/update-dev.pub): anyone can sign an update");
-    }
-    CAPACITY.store(updater.capacity(), Ordering::Relaxed);
-    UPDATER.init(Mutex::new(updater)).ok()?;
-    UPDATER.try_get()
+    UPDATE.install(RuleFlash::new(dfu), RuleFlash::new(state), aligned, config).is_some()
 }
 
 /// The signature check, in the bootloader (update_image::service): its
@@ -129,52 +114,23 @@ fn bootloader_check(
     unsafe { service::check_in(code, public_key, digest, signature) }
 }
 
-/// The updater, once [`updater`] has made it: the HTTP upload's too.
-static UPDATER: OnceLock<SharedUpdater> = OnceLock::new();
-
-/// The updater [`updater`] made, if it has.
-pub fn shared() -> Option<&'static SharedUpdater> {
-    UPDATER.try_get()
-}
-
-/// The largest update file the updater takes (0 before it is made).
-pub fn capacity() -> usize {
-    CAPACITY.load(Ordering::Relaxed)
-}
-
-static CAPACITY: AtomicUsize = AtomicUsize::new(0);
-
-/// Whether the image is on trial: [`pet_loop`] pets the watchdog once it
-/// is not (or has confirmed itself).
-pub static TRIAL: Trial = Trial::new();
-
 /// Reports the boot state and confirms an image on trial once it serves
 /// (`adapter::update::boot`), then pets the watchdog at once.
-pub async fn confirm_when_serving(
-    stack: Stack<'static>,
-    updater: &'static SharedUpdater,
-    device: &'static Device<'static>,
-) {
-    boot::confirm_when_serving(stack, updater, device, layout(), &TRIAL).await;
-    if TRIAL.settled() {
+pub async fn confirm_when_serving(stack: Stack<'static>, device: &'static Device<'static>) {
+    UPDATE.confirm_when_serving(stack, device, layout()).await;
+    if UPDATE.trial().settled() {
         crate::watchdog::pet();
     }
 }
 
-/// Makes [`pet_loop`] pet the watchdog from now on whatever the boot
-/// state: when the image cannot tell it (no updater).
-pub fn keep_petting() {
-    TRIAL.settle();
-}
-
 /// Pets the watchdog every [`crate::watchdog::PET_INTERVAL_MS`] once
-/// [`TRIAL`] is settled. Before the boot state is known, and on trial until
+/// [`UPDATE`]'s trial is settled. Before the boot state is known, and on trial until
 /// the confirmation, it does not: the bootloader's watchdog expires
 /// [`crate::watchdog::EXPIRY_S`] after the start (an NMI, [`NonMaskableInt`])
 /// and resets the board [`crate::watchdog::TRIAL_LIMIT_S`] after the start.
 pub async fn pet_loop() -> ! {
     loop {
-        if TRIAL.settled() {
+        if UPDATE.trial().settled() {
             crate::watchdog::pet();
         }
         embassy_time::Timer::after_millis(crate::watchdog::PET_INTERVAL_MS).await;

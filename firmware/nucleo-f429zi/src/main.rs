@@ -141,13 +141,14 @@ async fn start(spawner: Spawner) {
     spawner.spawn(unwrap!(refresh_task(device, board.inputs)));
     #[cfg(feature = "robot-link")]
     spawner.spawn(unwrap!(robot_link_task(stack, device)));
+    // Without an updater the confirmation only settles the trial flag, so
+    // that the watchdog is fed (a reset every 30 s would not help).
     #[cfg(feature = "update")]
-    match update::updater(board.flash.dfu, board.flash.state) {
-        Some(updater) => spawner.spawn(unwrap!(confirm_task(stack, updater, device))),
-        None => {
+    {
+        if !update::install(board.flash.dfu, board.flash.state) {
             defmt::error!("update: no updater: this image cannot confirm itself");
-            update::settle();
         }
+        spawner.spawn(unwrap!(confirm_task(stack, device)));
     }
     #[cfg(feature = "http")]
     {
@@ -206,10 +207,6 @@ async fn http_task(stack: Stack<'static>, api: &'static http::Api) -> ! {
 /// Confirms this image once it serves, when it runs on trial after a swap.
 #[cfg(feature = "update")]
 #[embassy_executor::task]
-async fn confirm_task(
-    stack: Stack<'static>,
-    updater: &'static update::SharedUpdater,
-    device: &'static Device<'static>,
-) {
-    update::confirm_when_serving(stack, updater, device).await
+async fn confirm_task(stack: Stack<'static>, device: &'static Device<'static>) {
+    update::confirm_when_serving(stack, device).await
 }

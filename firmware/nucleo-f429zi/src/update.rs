@@ -1,6 +1,6 @@
 //! Firmware update on this board (feature `update`; docs/update.md): the
 //! image runs from ACTIVE (`memory-update.x`), started by the bootloader
-//! (firmware/nucleo-f429zi-boot), and the [`Updater`] writes DFU and the
+//! (firmware/nucleo-f429zi-boot), and [`UPDATE`]'s updater writes DFU and the
 //! boot state in bank 2 ([`flash::Partitions`]).
 //!
 //! After a swap the new image is on trial: `adapter::update::boot`
@@ -13,25 +13,20 @@
 //! The signature check is the bootloader's (`update_image::service`): the
 //! image does not carry ed25519's 14 KiB.
 
-use core::sync::atomic::{AtomicUsize, Ordering};
-
 use adapter::device::Device;
-use adapter::update::boot::{self, TRIAL_LIMIT_S, Trial};
+use adapter::update::boot::{BoardUpdate, TRIAL_LIMIT_S};
 use adapter::update::image::{self, service};
-use adapter::update::{self, Config, ImageLayout, SignatureError, Updater};
+use adapter::update::{self, Config, ImageLayout, SignatureError};
 use embassy_net::Stack;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use embassy_sync::mutex::Mutex;
-use embassy_sync::once_lock::OnceLock;
 use embassy_time::Instant;
 use static_cell::StaticCell;
 
 use crate::flash::{self, ACTIVE_LEN, ACTIVE_START, BOOTLOADER_LEN, BOOTLOADER_START};
 
-/// The updater over DFU and the boot state.
-pub type BoardUpdater = Updater<'static, flash::DfuFlash, flash::StateFlash>;
-/// Shared by the confirmation and the HTTP upload.
-pub type SharedUpdater = Mutex<CriticalSectionRawMutex, BoardUpdater>;
+/// The updater over DFU and the boot state, with the trial flag: the
+/// confirmation's, the HTTP upload's and the watchdog feeder's.
+pub static UPDATE: BoardUpdate<CriticalSectionRawMutex, flash::DfuFlash, flash::StateFlash> = BoardUpdate::new();
 
 /// This image's record: its version, where every image for this board has
 /// it (the `.image_info` section of memory-update.x).
@@ -62,59 +57,23 @@ fn bootloader_check(
     unsafe { service::check_in(code, public_key, digest, signature) }
 }
 
-/// The updater over the partitions, made once.
-pub fn updater(dfu: flash::DfuFlash, state: flash::StateFlash) -> Option<&'static SharedUpdater> {
+/// Makes [`UPDATE`]'s updater over the partitions, once; false when it
+/// cannot (made already, or the partitions do not fit it).
+pub fn install(dfu: flash::DfuFlash, state: flash::StateFlash) -> bool {
     static ALIGNED: StaticCell<[u8; update::MAX_STATE_WORD]> = StaticCell::new();
-    let aligned = ALIGNED.try_init([0; update::MAX_STATE_WORD])?;
+    let Some(aligned) = ALIGNED.try_init([0; update::MAX_STATE_WORD]) else { return false };
     let config = Config::new(crate::MODEL, ACTIVE_LEN, bootloader_check);
-    let updater = match Updater::new(dfu, state, aligned, config) {
-        Ok(updater) => updater,
-        Err(e) => {
-            defmt::error!("update: {}", e);
-            return None;
-        }
-    };
-    if update::DEVELOPMENT_KEY {
-        defmt::warn!("update: the DEVELOPMENT key is built in (keys/update-dev.pub): anyone can sign an update");
-    }
-    CAPACITY.store(updater.capacity(), Ordering::Relaxed);
-    UPDATER.init(Mutex::new(updater)).ok()?;
-    UPDATER.try_get()
+    UPDATE.install(dfu, state, aligned, config).is_some()
 }
 
-static UPDATER: OnceLock<SharedUpdater> = OnceLock::new();
-
-/// The updater [`updater`] made, if it has: the HTTP upload's.
-pub fn shared() -> Option<&'static SharedUpdater> {
-    UPDATER.try_get()
-}
-
-/// The largest update file the updater takes (0 before it is made).
-pub fn capacity() -> usize {
-    CAPACITY.load(Ordering::Relaxed)
-}
-
-static CAPACITY: AtomicUsize = AtomicUsize::new(0);
-
-/// Whether the image is on trial.
-static TRIAL: Trial = Trial::new();
-
-/// Reports the boot state and confirms an image on trial once it serves.
-pub async fn confirm_when_serving(
-    stack: Stack<'static>,
-    updater: &'static SharedUpdater,
-    device: &'static Device<'static>,
-) {
-    boot::confirm_when_serving(stack, updater, device, layout(), &TRIAL).await;
-}
-
-/// No trial to wait for: the image has no updater to read the state with.
-pub fn settle() {
-    TRIAL.settle();
+/// Reports the boot state and confirms an image on trial once it serves
+/// (without an updater, settles the trial flag).
+pub async fn confirm_when_serving(stack: Stack<'static>, device: &'static Device<'static>) {
+    UPDATE.confirm_when_serving(stack, device, layout()).await;
 }
 
 /// Whether the watchdog's feeder goes on: not when the image is on trial
 /// and has not confirmed itself within [`TRIAL_LIMIT_S`] of its start.
 pub fn keeps_feeding() -> bool {
-    !(TRIAL.on_trial() && Instant::now().as_secs() >= TRIAL_LIMIT_S)
+    !(UPDATE.trial().on_trial() && Instant::now().as_secs() >= TRIAL_LIMIT_S)
 }

@@ -1,19 +1,23 @@
-//! What a board with `update` runs at boot, the same on every board
-//! (docs/update.md): read the boot state and the other image's version,
-//! report them on the [`Device`], and confirm an image on trial once it
-//! serves; and the [`Trial`] flag the board's watchdog feeding reads, so
-//! that an image on trial that does not confirm itself is reset and
-//! rolled back by the bootloader.
+//! What a board with `update` does with its [`Updater`], the same on
+//! every board (docs/update.md): a [`BoardUpdate`] holds it, made once at
+//! start, for the HTTP upload ([`BoardUpdate::receive`]) and for the
+//! confirmation ([`BoardUpdate::confirm_when_serving`]: read the boot state
+//! and the other image's version, report them on the [`Device`], and
+//! confirm an image on trial once it serves); its [`Trial`] flag is what
+//! the board's watchdog feeding reads, so that an image on trial that does
+//! not confirm itself is reset and rolled back by the bootloader.
 
-use core::sync::atomic::{AtomicU8, Ordering};
+use core::sync::atomic::{AtomicU8, AtomicUsize, Ordering};
 
 use embassy_net::Stack;
 use embassy_sync::blocking_mutex::raw::RawMutex;
 use embassy_sync::mutex::Mutex;
+use embassy_sync::once_lock::OnceLock;
 use embedded_storage_async::nor_flash::NorFlash;
 
-use super::{BootState, ImageLayout, Status, Updater};
+use super::{BootState, Config, ImageLayout, Status, Updater};
 use crate::device::Device;
+use crate::http::{FirmwareRefusal, request};
 
 /// How long an image on trial has to confirm itself, from its start
 /// (DEVICE.md section 5): after that the board's watchdog resets it.
@@ -62,11 +66,105 @@ impl Default for Trial {
     }
 }
 
+/// A board's updater, made once at start ([`Self::install`]), and its
+/// [`Trial`]: a `static` of the board's.
+pub struct BoardUpdate<M: RawMutex, DFU: NorFlash, STATE: NorFlash> {
+    updater: OnceLock<Mutex<M, Updater<'static, DFU, STATE>>>,
+    capacity: AtomicUsize,
+    trial: Trial,
+}
+
+impl<M: RawMutex, DFU: NorFlash, STATE: NorFlash> BoardUpdate<M, DFU, STATE> {
+    /// No updater yet.
+    pub const fn new() -> Self {
+        Self { updater: OnceLock::new(), capacity: AtomicUsize::new(0), trial: Trial::new() }
+    }
+
+    /// Makes the updater over `dfu` and `state` with `aligned` as
+    /// embassy-boot's state buffer ([`Updater::new`]); `None` when the
+    /// partitions do not fit it (logged) or it is made already.
+    pub fn install(
+        &'static self,
+        dfu: DFU,
+        state: STATE,
+        aligned: &'static mut [u8],
+        config: Config<'_>,
+    ) -> Option<&'static Mutex<M, Updater<'static, DFU, STATE>>> {
+        let updater = match Updater::new(dfu, state, aligned, config) {
+            Ok(updater) => updater,
+            Err(_error) => {
+                warn!("update: no updater: {:?}", _error);
+                return None;
+            }
+        };
+        if super::DEVELOPMENT_KEY {
+            warn!("update: the DEVELOPMENT key is built in (keys/update-dev.pub): anyone can sign an update");
+        }
+        self.capacity.store(updater.capacity(), Ordering::Relaxed);
+        self.updater.init(Mutex::new(updater)).ok()?;
+        self.updater.try_get()
+    }
+
+    /// The largest update file the updater takes (0 without one).
+    pub fn capacity(&self) -> usize {
+        self.capacity.load(Ordering::Relaxed)
+    }
+
+    /// Whether the image is on trial, for the board's watchdog feeding.
+    pub fn trial(&self) -> &Trial {
+        &self.trial
+    }
+
+    /// Feeds an upload from `body` into the updater
+    /// ([`crate::http::feed_update`]): what the board's
+    /// `Platform::receive_firmware` does. Unsupported without an updater.
+    pub async fn receive<R: embedded_io_async::Read>(
+        &self,
+        body: &mut request::Stream<'_, R>,
+    ) -> Result<crate::io::Version, FirmwareRefusal> {
+        let Some(updater) = self.updater.try_get() else { return Err(FirmwareRefusal::Unsupported) };
+        let received = crate::http::feed_update(&mut *updater.lock().await, body).await;
+        match &received {
+            Ok(_version) => info!("update: {:?} received and armed; rebooting into it", _version),
+            Err(_refusal) => warn!("update: refused: {:?}", _refusal),
+        }
+        received
+    }
+
+    /// Reads the boot state and the other image's version (by `layout`),
+    /// sets them on `device` and [`Self::trial`], then, once the network has
+    /// its address (the Modbus listeners are spawned before this runs),
+    /// confirms an image on trial. Without an updater: nothing to wait for
+    /// ([`Trial::settle`]).
+    pub async fn confirm_when_serving(&self, stack: Stack<'_>, device: &Device<'_>, layout: ImageLayout) {
+        match self.updater.try_get() {
+            Some(updater) => confirm_when_serving(stack, updater, device, layout, &self.trial).await,
+            None => self.trial.settle(),
+        }
+    }
+}
+
+impl<M: RawMutex, DFU: NorFlash, STATE: NorFlash> core::fmt::Debug for BoardUpdate<M, DFU, STATE> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("BoardUpdate")
+            .field("installed", &self.updater.try_get().is_some())
+            .field("capacity", &self.capacity())
+            .field("trial", &self.trial)
+            .finish()
+    }
+}
+
+impl<M: RawMutex, DFU: NorFlash, STATE: NorFlash> Default for BoardUpdate<M, DFU, STATE> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 /// Reads the boot state and the other image's version (by `layout`), sets
 /// them on `device` and `trial`, then, once the network has its address
 /// (the Modbus listeners are spawned before this runs), confirms an image
 /// on trial.
-pub async fn confirm_when_serving<M: RawMutex, DFU: NorFlash, STATE: NorFlash>(
+async fn confirm_when_serving<M: RawMutex, DFU: NorFlash, STATE: NorFlash>(
     stack: Stack<'_>,
     updater: &Mutex<M, Updater<'_, DFU, STATE>>,
     device: &Device<'_>,
