@@ -245,19 +245,9 @@ impl Segments {
 /// Reads `elf`'s program headers; fails on a segment outside ACTIVE or an
 /// image with no loadable bytes.
 fn active_segments(elf: &Path) -> Segments {
-    const PT_LOAD: u32 = 1;
     let bytes = std::fs::read(elf).unwrap_or_else(|e| panic!("{}: {e}", elf.display()));
-    let u16_at = |at: usize| u16::from_le_bytes(bytes[at..at + 2].try_into().unwrap());
-    let u32_at = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
-    assert_eq!(&bytes[..5], b"\x7fELF\x01", "{} is not a 32-bit ELF file", elf.display());
-    let (table, entry_len, entries) = (u32_at(0x1c) as usize, usize::from(u16_at(0x2a)), usize::from(u16_at(0x2c)));
     let mut segments = Vec::new();
-    for header in (0..entries).map(|i| table + i * entry_len) {
-        let (kind, offset, address, len) =
-            (u32_at(header), u32_at(header + 4) as usize, u32_at(header + 12), u32_at(header + 16) as usize);
-        if kind != PT_LOAD || len == 0 {
-            continue;
-        }
+    for (address, offset, len) in load_segments(&bytes, elf) {
         assert!(
             (ACTIVE..ACTIVE + ACTIVE_LEN).contains(&address),
             "a segment of {} loads at {address:#x}, outside ACTIVE",
@@ -267,6 +257,35 @@ fn active_segments(elf: &Path) -> Segments {
     }
     assert!(!segments.is_empty(), "{} has no loadable bytes", elf.display());
     Segments { bytes, segments }
+}
+
+/// The loadable segments of the 32-bit ELF file `bytes` (read from
+/// `elf`): load (physical) address, file offset and length of each that
+/// has bytes.
+fn load_segments(bytes: &[u8], elf: &Path) -> Vec<(u32, usize, usize)> {
+    const PT_LOAD: u32 = 1;
+    let u16_at = |at: usize| u16::from_le_bytes(bytes[at..at + 2].try_into().unwrap());
+    let u32_at = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
+    assert_eq!(&bytes[..5], b"\x7fELF\x01", "{} is not a 32-bit ELF file", elf.display());
+    let (table, entry_len, entries) = (u32_at(0x1c) as usize, usize::from(u16_at(0x2a)), usize::from(u16_at(0x2c)));
+    (0..entries)
+        .map(|i| table + i * entry_len)
+        .map(|header| (u32_at(header), u32_at(header + 12), u32_at(header + 4) as usize, u32_at(header + 16) as usize))
+        .filter(|&(kind, _, _, len)| kind == PT_LOAD && len > 0)
+        .map(|(_, address, offset, len)| (address, offset, len))
+        .collect()
+}
+
+/// Where in the ELF file `elf` the byte that loads at `address` is, and
+/// the file's bytes.
+pub fn elf_offset_of(elf: &Path, address: u32) -> (Vec<u8>, usize) {
+    let bytes = std::fs::read(elf).unwrap_or_else(|e| panic!("{}: {e}", elf.display()));
+    let offset = load_segments(&bytes, elf)
+        .into_iter()
+        .find(|&(start, _, len)| (start..start + len as u32).contains(&address))
+        .map(|(start, offset, _)| offset + (address - start) as usize)
+        .unwrap_or_else(|| panic!("nothing of {} loads at {address:#x}", elf.display()));
+    (bytes, offset)
 }
 
 fn modified(path: &Path) -> Option<SystemTime> {

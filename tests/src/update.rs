@@ -135,6 +135,21 @@ pub fn bootloader_output(stderr: &str) -> String {
     output
 }
 
+/// A copy of `bootloader` in `dir` whose signature check's table has lost
+/// its magic (one byte changed), as a bootloader without the table would
+/// be; checks first that the table is where the image looks for it.
+pub fn bootloader_without_check(bootloader: &Path, dir: &Path) -> PathBuf {
+    use update_image::service::{MAGIC, TABLE_OFFSET};
+    // The mps2 bootloader starts at 0x0: its table is at TABLE_OFFSET.
+    let table = u32::try_from(TABLE_OFFSET).unwrap();
+    let (mut bytes, at) = qemu::elf_offset_of(bootloader, table);
+    assert_eq!(bytes[at..at + MAGIC.len()], MAGIC, "the bootloader has no services' table at {table:#x}");
+    bytes[at] ^= 0x20;
+    let copy = dir.join("mps2-an386-boot-without-check");
+    std::fs::write(&copy, bytes).unwrap();
+    copy
+}
+
 /// `payload` signed for mps2-an386 as `version` with the development key,
 /// as an update file (`scripts/sign-firmware`; `dir` holds its files).
 pub fn signed(dir: &Path, payload: &[u8], version: &str) -> Vec<u8> {

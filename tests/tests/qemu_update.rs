@@ -11,7 +11,9 @@
 //! (`qemu::UPDATE_BUILD_COMMAND`), the second image
 //! (`qemu::UPDATE_NEXT_BUILD_COMMAND`), `qemu-system-arm` and `defmt-print`.
 //! One test uploads a signed file of another version through the API, as a
-//! user would, and reads the versions in 0x2B and the status.
+//! user would, and reads the versions in 0x2B and the status; another does
+//! the same under a bootloader whose signature check is gone, and the image
+//! refuses it.
 
 use std::path::Path;
 use std::process::{Command, Stdio};
@@ -20,8 +22,8 @@ use std::time::{Duration, Instant};
 use serde_json::json;
 use system_tests::qemu::{self, ACTIVE, BOOTLOADER_STATE, DFU, NO_ROBOT, Qemu, ROBOT_REGISTERS};
 use system_tests::update::{
-    BOOT_MAGIC, Offline, SWAP_MAGIC, api_status, arm, bootloader_output, installed_state, put_settings, signed,
-    state_word, test_dir, upload, write_at,
+    BOOT_MAGIC, Offline, SWAP_MAGIC, api_status, arm, bootloader_output, bootloader_without_check, installed_state,
+    put_settings, signed, state_word, test_dir, upload, write_at,
 };
 use tokio_modbus::client::Reader as _;
 use tokio_modbus::prelude::{ConformityLevel, ReadCode};
@@ -180,6 +182,41 @@ fn an_update_uploaded_through_the_api_is_checked_swapped_in_and_confirmed() {
     let status = api_status(qemu.http_addr(), Duration::from_secs(20)).expect("the API answers");
     assert_eq!(status["device"]["firmware"], next_version.as_str());
     assert_eq!(status["update"], json!({"state": "confirmed", "previous": old_version, "capacity": capacity}));
+    qemu.finish();
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The image checks signatures with its bootloader's check
+/// (`update_image::service`). Under a bootloader without one (here the
+/// real one with its table's magic changed) it must take no update at
+/// all: the signed file of the next version is refused with 501, nothing
+/// is armed, and the image runs and serves on as before.
+#[test]
+fn without_the_bootloaders_signature_check_no_update_is_taken() {
+    let (bootloader, image) = qemu::update_images();
+    let (next, next_version) = qemu::update_next_image();
+    let old_version = qemu::firmware_version().map(|n| n.to_string()).join(".");
+    let dir = test_dir("update-no-check");
+    let without = bootloader_without_check(&bootloader, &dir);
+    let state = installed_state(&dir, &image);
+    let file = signed(&dir, &qemu::flat_binary(&next), &next_version);
+
+    let qemu = Qemu::slirp_booting(&without, &image, &state);
+    qemu.wait_for_log("update: boot state Confirmed", Duration::from_secs(30));
+    qemu.wait_for_log("Modbus TCP server at", Duration::from_secs(30));
+    let (status, body) = upload(qemu.http_addr(), &file);
+    assert_eq!(status, 501, "{body}\n{}", qemu.log());
+    assert!(body.contains("takes no updates"), "{body}");
+    assert!(qemu.log().contains("update: refused: Unsupported"), "{}", qemu.log());
+    assert_ne!(state_word(&state, BOOTLOADER_STATE), SWAP_MAGIC, "armed without a signature check");
+    let status = api_status(qemu.http_addr(), Duration::from_secs(20)).expect("the API answers");
+    assert_eq!(status["device"]["firmware"], old_version.as_str());
+    assert_eq!(status["update"]["state"], "confirmed", "{status}");
+    let registers = qemu.run(|| async {
+        let mut ctx = qemu.connect().await;
+        ctx.read_holding_registers(ROBOT_REGISTERS, 4).await.unwrap().unwrap()
+    });
+    assert_eq!(registers, NO_ROBOT, "the image serves on");
     qemu.finish();
     std::fs::remove_dir_all(&dir).unwrap();
 }
