@@ -198,3 +198,26 @@ async fn confirm_when_serving<M: RawMutex, DFU: NorFlash, STATE: NorFlash>(
         Err(_error) => warn!("update: confirmation failed: {:?}", _error),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// What the boards' watchdog feeders read: mps2 pets only once
+    /// settled, the NUCLEO stops feeding only when on trial past the limit;
+    /// before the boot state is read it is neither.
+    #[test]
+    fn the_trial_flag_follows_the_boot_state_and_the_confirmation() {
+        let trial = Trial::new();
+        assert!(!trial.on_trial() && !trial.settled(), "unknown at start");
+        trial.set(BootState::Trial);
+        assert!(trial.on_trial() && !trial.settled());
+        trial.settle();
+        assert!(!trial.on_trial() && trial.settled(), "confirmed");
+        for state in [BootState::Confirmed, BootState::RolledBack, BootState::Armed, BootState::DfuDetach] {
+            let trial = Trial::new();
+            trial.set(state);
+            assert!(!trial.on_trial() && trial.settled(), "{state:?}");
+        }
+    }
+}
