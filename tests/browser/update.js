@@ -34,9 +34,13 @@ function check(ok, what) {
   if (!ok) throw new Failed(what);
 }
 
-// The "Firmware" list as {term: value}.
+// The "Firmware" list as {term: value}, read in one evaluation: the page
+// rewrites the list at each status poll, and `$$eval` queries the elements
+// first and reads them in a second step, by when a poll may have detached
+// them (a dt with no sibling).
 async function firmware(page) {
-  return page.$$eval('#fw dt', (dts) => Object.fromEntries(dts.map((dt) => [dt.textContent, dt.nextElementSibling.textContent])));
+  return page.evaluate(() => Object.fromEntries([...document.querySelectorAll('#fw dt')]
+    .map((dt) => [dt.textContent, dt.nextElementSibling.textContent])));
 }
 
 // Uploads `file` through the page; samples the progress bar until the
