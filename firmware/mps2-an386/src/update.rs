@@ -39,6 +39,9 @@ static TAKEN: AtomicBool = AtomicBool::new(false);
 #[unsafe(link_section = ".image_info")]
 static IMAGE_INFO: [u8; update::IMAGE_INFO_LEN] = update::image_info(adapter::VERSION);
 
+// The watchdog's reset, which the bootloader sets up, is the trial's limit.
+const _: () = assert!(crate::watchdog::TRIAL_LIMIT_S as u64 == adapter::update::boot::TRIAL_LIMIT_S);
+
 /// The bootloader's swap page (RuleFlash's page, as in the bootloader).
 const PAGE: u32 = 4096;
 

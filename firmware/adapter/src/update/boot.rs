@@ -137,9 +137,35 @@ impl<M: RawMutex, DFU: NorFlash, STATE: NorFlash> BoardUpdate<M, DFU, STATE> {
     /// confirms an image on trial. Without an updater: nothing to wait for
     /// ([`Trial::settle`]).
     pub async fn confirm_when_serving(&self, stack: Stack<'_>, device: &Device<'_>, layout: ImageLayout) {
-        match self.updater.try_get() {
-            Some(updater) => confirm_when_serving(stack, updater, device, layout, &self.trial).await,
-            None => self.trial.settle(),
+        let Some(updater) = self.updater.try_get() else {
+            self.trial.settle();
+            return;
+        };
+        {
+            let mut updater = updater.lock().await;
+            match updater.boot_state().await {
+                Ok(state) => {
+                    let previous = updater.other_image(layout).await.unwrap_or(None);
+                    let capacity = u32::try_from(updater.capacity()).unwrap_or(u32::MAX);
+                    info!("update: boot state {:?}, previous firmware {:?}", state, previous);
+                    device.set_firmware_update(Status { state, previous, capacity });
+                    self.trial.set(state);
+                }
+                Err(_error) => {
+                    warn!("update: boot state unreadable: {:?}", _error);
+                    self.trial.settle();
+                }
+            }
+        }
+        stack.wait_config_up().await;
+        match updater.lock().await.confirm().await {
+            Ok(true) => {
+                device.set_firmware_update_state(BootState::Confirmed);
+                self.trial.settle();
+                info!("update: this image is confirmed");
+            }
+            Ok(false) => {}
+            Err(_error) => warn!("update: confirmation failed: {:?}", _error),
         }
     }
 }
@@ -157,45 +183,6 @@ impl<M: RawMutex, DFU: NorFlash, STATE: NorFlash> core::fmt::Debug for BoardUpda
 impl<M: RawMutex, DFU: NorFlash, STATE: NorFlash> Default for BoardUpdate<M, DFU, STATE> {
     fn default() -> Self {
         Self::new()
-    }
-}
-
-/// Reads the boot state and the other image's version (by `layout`), sets
-/// them on `device` and `trial`, then, once the network has its address
-/// (the Modbus listeners are spawned before this runs), confirms an image
-/// on trial.
-async fn confirm_when_serving<M: RawMutex, DFU: NorFlash, STATE: NorFlash>(
-    stack: Stack<'_>,
-    updater: &Mutex<M, Updater<'_, DFU, STATE>>,
-    device: &Device<'_>,
-    layout: ImageLayout,
-    trial: &Trial,
-) {
-    {
-        let mut updater = updater.lock().await;
-        match updater.boot_state().await {
-            Ok(state) => {
-                let previous = updater.other_image(layout).await.unwrap_or(None);
-                let capacity = u32::try_from(updater.capacity()).unwrap_or(u32::MAX);
-                info!("update: boot state {:?}, previous firmware {:?}", state, previous);
-                device.set_firmware_update(Status { state, previous, capacity });
-                trial.set(state);
-            }
-            Err(_error) => {
-                warn!("update: boot state unreadable: {:?}", _error);
-                trial.settle();
-            }
-        }
-    }
-    stack.wait_config_up().await;
-    match updater.lock().await.confirm().await {
-        Ok(true) => {
-            device.set_firmware_update_state(BootState::Confirmed);
-            trial.settle();
-            info!("update: this image is confirmed");
-        }
-        Ok(false) => {}
-        Err(_error) => warn!("update: confirmation failed: {:?}", _error),
     }
 }
 
