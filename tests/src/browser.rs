@@ -80,3 +80,25 @@ pub fn run_within(mut command: Command, limit: Duration) -> (bool, String, Strin
     }
     (status.is_some_and(|s| s.success()), stdout, stderr)
 }
+
+/// [`artifacts`], with the screenshots `names` of an earlier run removed
+/// (a failed run must not leave one that looks like this run's).
+pub fn fresh_artifacts(names: &[&str]) -> PathBuf {
+    let dir = artifacts();
+    for name in names {
+        let _ = std::fs::remove_file(dir.join(name));
+    }
+    dir
+}
+
+/// The script's summary: the last line of its stdout that is JSON,
+/// printed for the test's log.
+pub fn summary(stdout: &str) -> serde_json::Value {
+    let summary = stdout
+        .lines()
+        .rev()
+        .find_map(|line| serde_json::from_str(line).ok())
+        .unwrap_or_else(|| panic!("the script's summary: {stdout}"));
+    println!("browser: {summary}");
+    summary
+}

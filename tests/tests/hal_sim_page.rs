@@ -14,7 +14,7 @@ use std::process::Stdio;
 use std::time::Duration;
 
 use serde_json::Value;
-use system_tests::browser::{BROWSER_TIMEOUT, artifacts, browser_dir, require_browser, run_within};
+use system_tests::browser::{BROWSER_TIMEOUT, browser_dir, fresh_artifacts, require_browser, run_within, summary};
 use system_tests::hal_sim::{HalSim, Reply, read_frame};
 use system_tests::netns::DEVICE_IP;
 use tokio::io::AsyncWriteExt;
@@ -78,10 +78,7 @@ fn the_page_shows_the_device_live_and_changes_it_through_the_api() {
     let before = ok(sim.get("/api/settings"));
     assert_eq!(sim.control_ok("get locate"), "0");
 
-    let artifacts = artifacts();
-    for old in ["page.png", "page-error.png", "page-narrow.png", "page-failure.png"] {
-        let _ = std::fs::remove_file(artifacts.join(old));
-    }
+    let artifacts = fresh_artifacts(&["page.png", "page-error.png", "page-narrow.png", "page-failure.png"]);
     let mut node = sim.ns().command("node");
     node.current_dir(browser_dir())
         .arg("page.js")
@@ -96,12 +93,7 @@ fn the_page_shows_the_device_live_and_changes_it_through_the_api() {
         "the page failed in the browser (screenshot: {}):\n{stderr}\n{stdout}",
         artifacts.join("page-failure.png").display()
     );
-    let summary: Value = stdout
-        .lines()
-        .rev()
-        .find_map(|line| serde_json::from_str(line).ok())
-        .unwrap_or_else(|| panic!("the script's summary: {stdout}"));
-    println!("browser: {summary}");
+    let summary = summary(&stdout);
 
     assert!(summary["title"].as_str().is_some_and(|t| t.contains("mbio-53494d")), "{summary}");
     assert!(summary["model"].as_str().is_some_and(|m| m.contains(&format!("firmware {version}"))), "{summary}");

@@ -16,7 +16,7 @@
 use std::process::Stdio;
 
 use serde_json::Value;
-use system_tests::browser::{BROWSER_TIMEOUT, artifacts, browser_dir, require_browser, run_within};
+use system_tests::browser::{BROWSER_TIMEOUT, browser_dir, fresh_artifacts, require_browser, run_within, summary};
 use system_tests::qemu::{self, BOOTLOADER_STATE, NO_ROBOT, Qemu, ROBOT_REGISTERS};
 use system_tests::update::{BOOT_MAGIC, api_status, installed_state, signed, signed_for, state_word, test_dir};
 use tokio_modbus::client::Reader as _;
@@ -53,10 +53,7 @@ fn the_page_uploads_an_update_with_its_progress_and_shows_the_new_version() {
 
     let qemu = Qemu::slirp_booting(&bootloader, &image, &state);
     qemu.wait_for_log("Modbus TCP server at", qemu::READY_TIMEOUT);
-    let artifacts = artifacts();
-    for old in ["update.png", "update-failure.png"] {
-        let _ = std::fs::remove_file(artifacts.join(old));
-    }
+    let artifacts = fresh_artifacts(&["update.png", "update-failure.png"]);
     let mut node = std::process::Command::new("node");
     node.current_dir(browser_dir())
         .arg("update.js")
@@ -74,12 +71,7 @@ fn the_page_uploads_an_update_with_its_progress_and_shows_the_new_version() {
         artifacts.join("update-failure.png").display(),
         qemu.stderr()
     );
-    let summary: Value = stdout
-        .lines()
-        .rev()
-        .find_map(|line| serde_json::from_str(line).ok())
-        .unwrap_or_else(|| panic!("the script's summary: {stdout}"));
-    println!("browser: {summary}");
+    let summary = summary(&stdout);
     let reasons = summary["refused"].as_array().expect("the refusals seen");
     assert_eq!(reasons.len(), 3, "{summary}");
     for (reason, word) in reasons.iter().zip(["signature", "another board", "cut off"]) {
