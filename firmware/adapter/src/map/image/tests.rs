@@ -327,3 +327,29 @@ fn power_up_state() {
     assert!((0..=reg::LAST).filter(|&a| a != reg::ROBOT_STATE).all(|a| image.register(a) == 0));
     assert!((0..=coil::LAST).all(|c| !image.coil(c)));
 }
+
+#[test]
+fn a_block_reads_each_register_big_endian_in_order_for_odd_and_even_counts() {
+    let mut image = Image::new();
+    let stored = |address: u16| 0x0102u16.wrapping_mul(address).wrapping_add(0x5a0f);
+    for address in 0..=reg::LAST {
+        image.set_register(address, stored(address));
+    }
+    let mut out = [0u8; 250];
+    for quantity in [1u16, 2, 3, 4, 10, 124, 125] {
+        for start in [0, 1, 2, reg::LAST + 1 - quantity] {
+            let len = image.read_registers(start, quantity, &mut out).unwrap();
+            assert_eq!(len, usize::from(quantity) * 2);
+            for (i, pair) in out[..len].chunks(2).enumerate() {
+                let address = start + i as u16;
+                // A reserved address reads 0 whatever was set.
+                let expected = if spec(SPEC_REGISTERS, address) == Gap { 0 } else { stored(address) };
+                assert_eq!(
+                    u16::from_be_bytes([pair[0], pair[1]]),
+                    expected,
+                    "register {address} of {start}+{quantity}"
+                );
+            }
+        }
+    }
+}
