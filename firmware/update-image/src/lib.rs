@@ -6,7 +6,7 @@
 //! | offset | len | field                                                        |
 //! |-------:|----:|--------------------------------------------------------------|
 //! |      0 |   8 | magic "MBIOFW\r\n" (a text-mode transfer mangles the \r\n)   |
-//! |      8 |   2 | format version, u16 LE: 1                                    |
+//! |      8 |   2 | format version, u16 LE: 2                                    |
 //! |     10 |   2 | header length, u16 LE: 128                                   |
 //! |     12 |  32 | board id: the board crate's name, ASCII a-z 0-9 -, NUL-padded |
 //! |     44 |   6 | firmware version major, minor, patch: u16 LE each            |
@@ -17,13 +17,15 @@
 //! |    128 |   n | payload                                                      |
 //! ```
 //!
-//! **What is signed**: the digest is SHA-512 over the header's first 64
+//! **What is signed**: the digest is SHA-256 over the header's first 64
 //! bytes (everything but the signature) followed by the payload, and the
-//! signature is plain ed25519 with those 64 bytes as its message. So the
+//! signature is plain ed25519 with those 32 bytes as its message. So the
 //! board, the version and the length are signed with the code: an image
 //! for another board cannot be relabelled, nor a version changed. It is
-//! embassy-boot's construction (`verify_and_mark_updated` signs the SHA-512
-//! digest of the DFU contents) with the header in front of the payload.
+//! embassy-boot's construction (`verify_and_mark_updated` signs a digest
+//! of the DFU contents) with the header in front of the payload, and with
+//! SHA-256, the hash the device already carries for its password (format
+//! 1 used SHA-512, which an image then carried for this alone).
 //!
 //! The contract is smoltcp's: [`Header::parse`] reads by length and never
 //! panics; [`Header::emit`] fills exactly [`HEADER_LEN`] bytes.
@@ -34,13 +36,14 @@ use core::fmt;
 
 #[cfg(feature = "verify")]
 use ed25519_dalek::{Signature, VerifyingKey};
-use sha2_512::{Digest as _, Sha512};
+use sha2::{Digest as _, Sha256};
 
 /// The file's first bytes.
 pub const MAGIC: [u8; 8] = *b"MBIOFW\r\n";
-/// The header format this crate reads and writes.
-pub const FORMAT_VERSION: u16 = 1;
-/// The header's length in format 1: the payload starts here.
+/// The header format this crate reads and writes: 2, whose digest is
+/// SHA-256 (format 1's was SHA-512; its files are refused as another format).
+pub const FORMAT_VERSION: u16 = 2;
+/// The header's length in format 2: the payload starts here.
 pub const HEADER_LEN: usize = 128;
 /// The header's bytes the digest covers: all but the signature.
 pub const SIGNED_LEN: usize = 64;
@@ -48,8 +51,8 @@ pub const SIGNED_LEN: usize = 64;
 pub const SIGNATURE_LEN: usize = 64;
 /// An ed25519 public key's length.
 pub const PUBLIC_KEY_LEN: usize = 32;
-/// The digest's length (SHA-512).
-pub const DIGEST_LEN: usize = 64;
+/// The digest's length (SHA-256).
+pub const DIGEST_LEN: usize = 32;
 /// The longest board id.
 pub const MAX_BOARD_LEN: usize = 32;
 
@@ -301,15 +304,15 @@ impl Header {
     }
 }
 
-/// The image's digest, fed as the bytes arrive: SHA-512 over the header's
+/// The image's digest, fed as the bytes arrive: SHA-256 over the header's
 /// first [`SIGNED_LEN`] bytes, then the payload.
 #[derive(Clone, Debug)]
-pub struct Digest(Sha512);
+pub struct Digest(Sha256);
 
 impl Digest {
     /// A digest over the header's signed bytes; the payload follows.
     pub fn new(signed: &[u8; SIGNED_LEN]) -> Self {
-        let mut sha = Sha512::new();
+        let mut sha = Sha256::new();
         sha.update(signed);
         Self(sha)
     }
@@ -319,7 +322,7 @@ impl Digest {
         self.0.update(payload);
     }
 
-    /// The 64 bytes the signature signs.
+    /// The 32 bytes the signature signs.
     pub fn finalize(self) -> [u8; DIGEST_LEN] {
         self.0.finalize().into()
     }

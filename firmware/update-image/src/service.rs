@@ -30,8 +30,10 @@ use crate::{DIGEST_LEN, PUBLIC_KEY_LEN, SIGNATURE_LEN, SignatureError};
 /// `.boot_services` section there and checks it).
 pub const TABLE_OFFSET: usize = 0x400;
 
-/// The table's first bytes; another layout of the table gets another magic.
-pub const MAGIC: [u8; 8] = *b"MBIOSVC\x01";
+/// The table's first bytes; another layout of the table, or another
+/// length of the digest it checks, gets another magic (`\x01` checked a
+/// 64-byte digest, `\x02` the 32-byte digest of format 2).
+pub const MAGIC: [u8; 8] = *b"MBIOSVC\x02";
 
 /// The check's entry point, as the bootloader exports it: pointers to the
 /// public key, the digest (the signed message) and the signature; it
@@ -177,9 +179,9 @@ mod tests {
 
     static TABLE: Services = Services::new();
 
-    fn signed() -> ([u8; 32], [u8; 64], [u8; 64]) {
+    fn signed() -> ([u8; PUBLIC_KEY_LEN], [u8; DIGEST_LEN], [u8; SIGNATURE_LEN]) {
         let key = SigningKey::from_bytes(&[7; 32]);
-        let digest = [0x5a; 64];
+        let digest = [0x5a; DIGEST_LEN];
         (key.verifying_key().to_bytes(), digest, key.sign(&digest).to_bytes())
     }
 
@@ -198,7 +200,7 @@ mod tests {
         assert_eq!(service.verify(&key, &digest, &forged), Err(SignatureError::Mismatch));
         assert_eq!(crate::verify(&key, &digest, &forged), Err(SignatureError::Mismatch));
         let mut other = digest;
-        other[63] ^= 0x80;
+        other[DIGEST_LEN - 1] ^= 0x80;
         assert_eq!(service.verify(&key, &other, &signature), Err(SignatureError::Mismatch));
     }
 

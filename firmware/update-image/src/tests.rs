@@ -9,8 +9,8 @@ use super::*;
 const HEADER: [u8; HEADER_LEN] = [
     // magic "MBIOFW\r\n"
     b'M', b'B', b'I', b'O', b'F', b'W', b'\r', b'\n',
-    // format version 1, header length 128 (LE)
-    0x01, 0x00, 0x80, 0x00,
+    // format version 2, header length 128 (LE)
+    0x02, 0x00, 0x80, 0x00,
     // board "mps2-an386", NUL-padded to 32 bytes
     b'm', b'p', b's', b'2', b'-', b'a', b'n', b'3', b'8', b'6', 0, 0, 0, 0, 0, 0,
     0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0,
@@ -112,7 +112,8 @@ fn every_magic_byte_is_checked() {
 
 #[test]
 fn another_format_version_is_refused() {
-    for version in [0u16, 2, 0x0100, u16::MAX] {
+    // 1: format 1's files, whose digest was SHA-512.
+    for version in [0u16, 1, 3, 0x0200, u16::MAX] {
         let mut bytes = HEADER;
         bytes[field::FORMAT_VERSION].copy_from_slice(&version.to_le_bytes());
         assert_eq!(Header::parse(&bytes), Err(FormatError::FormatVersion(version)));
@@ -216,10 +217,10 @@ fn rfc_8032_test_1_verifies() {
     assert!(key.verify_strict(b"", &Signature::from_bytes(&signature)).is_ok());
 }
 
-/// The digest is SHA-512 of the signed header bytes and then the payload,
+/// The digest is SHA-256 of the signed header bytes and then the payload,
 /// however the payload is split.
 #[test]
-fn the_digest_is_sha512_of_header_then_payload() {
+fn the_digest_is_sha256_of_header_then_payload() {
     let header = header();
     let payload = [7u8; 300];
     let mut digest = header.digest();
@@ -227,10 +228,10 @@ fn the_digest_is_sha512_of_header_then_payload() {
     digest.update(&payload[100..]);
     let mut whole = header.signed_bytes().to_vec();
     whole.extend_from_slice(&payload);
-    assert_eq!(digest.finalize(), <[u8; 64]>::from(Sha512::digest(&whole)));
-    // And SHA-512 is SHA-512: FIPS 180-2's "abc".
-    let abc = Sha512::digest(b"abc");
-    assert_eq!(abc[..4], [0xdd, 0xaf, 0x35, 0xa1]);
+    assert_eq!(digest.finalize(), <[u8; DIGEST_LEN]>::from(Sha256::digest(&whole)));
+    // And SHA-256 is SHA-256: FIPS 180-2's "abc".
+    let abc = Sha256::digest(b"abc");
+    assert_eq!(abc[..4], [0xba, 0x78, 0x16, 0xbf]);
 }
 
 #[test]

@@ -225,8 +225,8 @@ fn an_image_larger_than_active_is_refused_before_writing() {
 fn garbage_is_refused_before_writing() {
     assert_refused_before_writing(&[0x3c; 3000], Error::Format(FormatError::Magic));
     let mut file = image(&payload(100, 8));
-    file[8] = 2; // format version 2
-    assert_refused_before_writing(&file, Error::Format(FormatError::FormatVersion(2)));
+    file[8] = 1; // format version 1: a file whose digest is SHA-512
+    assert_refused_before_writing(&file, Error::Format(FormatError::FormatVersion(1)));
 }
 
 #[test]
@@ -367,7 +367,11 @@ fn the_built_in_key_is_the_development_key() {
 /// fault, with nothing armed.
 #[test]
 fn without_a_check_every_upload_is_refused_and_nothing_armed() {
-    fn unavailable(_: &[u8; 32], _: &[u8; 64], _: &[u8; 64]) -> Result<(), SignatureError> {
+    fn unavailable(
+        _: &[u8; image::PUBLIC_KEY_LEN],
+        _: &[u8; image::DIGEST_LEN],
+        _: &[u8; image::SIGNATURE_LEN],
+    ) -> Result<(), SignatureError> {
         Err(SignatureError::Unavailable)
     }
     let mut bench = Bench::new();
