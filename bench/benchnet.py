@@ -8,6 +8,7 @@ network namespaces made here and deleted on exit: no traffic leaves them.
       loadgen (pinned to the client CPU)       libmodbus_server, pymodbus_server
       tap0 198.18.0.1/24 --- hal-sim 198.18.0.2  (pinned to the server CPU)
       veth0 198.18.1.1/24 -------------------- veth1 198.18.1.2/24
+      tap1 198.18.3.1/24 --- a second hal-sim 198.18.3.2 (bench-net: with --busy-poll)
 
 The peers sit in a namespace of their own so their traffic really crosses
 the veth pair: two ends in one namespace would be short-cut through `lo`.
@@ -28,6 +29,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 TAP_HOST = "198.18.0.1/24"
 HAL_SIM_IP = "198.18.0.2"
+# A second TAP and hal-sim (`Bench.add_tap`), for another hal-sim in the same run.
+TAP1_HOST = "198.18.3.1/24"
+HAL_SIM1_IP = "198.18.3.2"
 VETH_CLIENT = "198.18.1.1/24"
 PEER_IP = "198.18.1.2"
 MODBUS_PORT = 502
@@ -145,6 +149,12 @@ class Bench:
             self.ip(ns, "link", "set", "veth0", "up")
             self.ip(peer, "link", "set", "veth1", "up")
 
+    def add_tap(self, name, host):
+        """Another TAP in the client namespace, `host` (address/prefix) its end."""
+        self.ip(self.client_ns, "tuntap", "add", "dev", name, "mode", "tap")
+        self.ip(self.client_ns, "addr", "add", host, "dev", name)
+        self.ip(self.client_ns, "link", "set", name, "up")
+
     @staticmethod
     def ip(ns, *args):
         run(["ip", "-n", ns, *args])
@@ -184,8 +194,8 @@ class Bench:
                 text += "".join(path.read_text().splitlines(keepends=True)[-lines:])
         return text.strip() or "(no output)"
 
-    def start_hal_sim(self, binary, cpu, args=()):
-        return self.start("hal-sim", self.client_ns, cpu, [binary, "--tap", "tap0", "--ip", f"{HAL_SIM_IP}/24", *args],
+    def start_hal_sim(self, binary, cpu, args=(), tap="tap0", ip=HAL_SIM_IP, name="hal-sim"):
+        return self.start(name, self.client_ns, cpu, [binary, "--tap", tap, "--ip", f"{ip}/24", *args],
                           "listening on", env={"RUST_LOG": os.environ.get("RUST_LOG", "info")})
 
     def loadgen(self, binary, cpu, target, args):

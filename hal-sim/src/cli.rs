@@ -10,10 +10,12 @@ use std::path::PathBuf;
 use adapter::settings::{Cidr, Field, Name, NetMode, Settings};
 use sim_robot::Mode;
 
+pub use crate::runtime::MAX_BUSY_POLL_US;
+
 /// The first lines of the usage text; the settings follow, from the table.
 const USAGE_HEAD: &str = "\
 usage: hal-sim --tap NAME [--control PATH] [--robot demo|idle] [--state FILE] [--http-port N]
-               [SETTING VALUE]...
+               [--busy-poll US] [SETTING VALUE]...
 
   --tap NAME            the TAP interface to run on (made beforehand with
                         `ip tuntap add dev NAME mode tap user $USER`, or by hal-sim as root)
@@ -22,6 +24,9 @@ usage: hal-sim --tap NAME [--control PATH] [--robot demo|idle] [--state FILE] [-
   --state FILE          the settings flash, kept in FILE (64 KiB; made when missing); without it,
                         settings saved through the HTTP API last until hal-sim exits
   --http-port N         the HTTP API's port, 1-65535, or 0 for none (default 80)
+  --busy-poll US        when idle, poll the TAP without sleeping for up to US microseconds
+                        (0-1000) before each sleep: lower latency for a busy client, for a CPU
+                        kept busy meanwhile (default 0: off)
   -h, --help            this text
   -V, --version         hal-sim's version and the firmware version it reports
 
@@ -66,6 +71,9 @@ pub struct Options {
     pub state: Option<PathBuf>,
     /// The HTTP API's port (`None`: no HTTP).
     pub http_port: Option<u16>,
+    /// How long the loop polls without blocking before it sleeps, in
+    /// microseconds (0: never; at most [`MAX_BUSY_POLL_US`]).
+    pub busy_poll_us: u64,
     /// The device's factory settings: the model's defaults with the flags
     /// applied. What the state file holds overrides them.
     pub settings: Settings,
@@ -102,6 +110,7 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
     let mut robot = None;
     let mut state = None;
     let mut http_port = None;
+    let mut busy_poll = None;
     let mut settings = factory_defaults();
     let mut given: Vec<Field> = Vec::new();
 
@@ -122,6 +131,7 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
             "--robot" => Target::Own(&mut robot),
             "--state" => Target::Own(&mut state),
             "--http-port" => Target::Own(&mut http_port),
+            "--busy-poll" => Target::Own(&mut busy_poll),
             _ => match flag.strip_prefix("--").and_then(|name| Field::ALL.iter().find(|f| f.flag() == name)) {
                 Some(&field) => Target::Setting(field),
                 None if flag.starts_with('-') => return error(format!("unknown option `{flag}`")),
@@ -171,12 +181,23 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
             settings.modbus.port
         ));
     }
+    let busy_poll_us = match busy_poll.as_deref().map(str::parse::<u64>) {
+        None => 0,
+        Some(Ok(us)) if us <= MAX_BUSY_POLL_US => us,
+        Some(_) => {
+            return error(format!(
+                "`--busy-poll` must be 0-{MAX_BUSY_POLL_US} microseconds, not `{}`",
+                busy_poll.unwrap_or_default()
+            ));
+        }
+    };
     let options = Options {
         tap,
         control: control.map(PathBuf::from),
         robot,
         state: state.map(PathBuf::from),
         http_port,
+        busy_poll_us,
         settings,
     };
     Ok(Action::Run(Box::new(options)))
@@ -233,6 +254,18 @@ mod tests {
         assert_eq!(o.robot, Mode::Demo);
         assert_eq!(o.state, None);
         assert_eq!(o.http_port, Some(80));
+        assert_eq!(o.busy_poll_us, 0, "busy polling is off unless asked for");
+    }
+
+    #[test]
+    fn busy_poll() {
+        assert_eq!(run(&["--tap", "t", "--busy-poll", "50"]).unwrap().busy_poll_us, 50);
+        assert_eq!(run(&["--tap", "t", "--busy-poll=0"]).unwrap().busy_poll_us, 0);
+        assert_eq!(run(&["--tap", "t", "--busy-poll", "1000"]).unwrap().busy_poll_us, MAX_BUSY_POLL_US);
+        fails(&["--tap", "t", "--busy-poll", "1001"], "`--busy-poll` must be 0-1000 microseconds, not `1001`");
+        fails(&["--tap", "t", "--busy-poll", "-5"], "not `-5`");
+        fails(&["--tap", "t", "--busy-poll", "1", "--busy-poll", "2"], "given twice");
+        assert!(usage().contains("--busy-poll US"));
     }
 
     #[test]

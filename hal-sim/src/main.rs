@@ -151,7 +151,10 @@ fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>, fl
     let options: &'static Options = Box::leak(Box::new(options));
     let sim = Sim { stack, board, server, controller, api, settings, options };
 
-    let executor: &'static mut Executor = match Executor::new() {
+    if options.busy_poll_us > 0 {
+        log::info!("busy polling: up to {} µs before each sleep", options.busy_poll_us);
+    }
+    let executor: &'static mut Executor = match Executor::new(options.busy_poll_us) {
         Ok(executor) => Box::leak(Box::new(executor)),
         Err(e) => {
             eprintln!("hal-sim: cannot make its executor: {e}");

@@ -193,3 +193,46 @@ fn a_bad_length_closes_that_connection_while_others_carry_on() {
     });
     assert!(sim.log().contains("bad MBAP length"));
 }
+
+/// `--busy-poll`: the loop polls instead of sleeping for a while after each
+/// event. Clients are served alike, timers still fire while it polls (the
+/// communication watchdog trips on time), and once nothing happens it goes
+/// back to sleep: an idle hal-sim does not keep its CPU busy.
+#[test]
+fn busy_polling_serves_alike_keeps_timers_and_sleeps_when_idle() {
+    let sim = HalSim::start(&["--robot", "idle", "--busy-poll", "1000", "--watchdog-ms", "500", "--safe-do", "0x8000"]);
+    assert!(sim.log().contains("busy polling: up to 1000 µs"), "{}", sim.log());
+    let sim = &sim;
+    sim.run(|| async {
+        let client = |i: u16| async move {
+            let mut ctx = sim.connect().await;
+            for n in 0..200u16 {
+                ctx.write_single_register(128 + i, n).await.unwrap().unwrap();
+                assert_eq!(ctx.read_holding_registers(128 + i, 1).await.unwrap().unwrap(), [n], "client {i}");
+            }
+            ctx
+        };
+        let (mut first, ..) = tokio::join!(client(0), client(1), client(2), client(3));
+        first.write_single_register(1, 0x00ff).await.unwrap().unwrap();
+        assert_eq!(sim.control_ok("get do"), "255");
+        // Silence: the watchdog's timer fires within its timeout and one refresh.
+        tokio::time::sleep(Duration::from_millis(800)).await;
+        assert_eq!(sim.control_ok("get do"), "32768");
+    });
+    // Idle for 2 s: a loop that never stopped polling would use all of it.
+    let busy = cpu_time(sim.pid());
+    std::thread::sleep(Duration::from_secs(2));
+    let used = cpu_time(sim.pid()) - busy;
+    assert!(used < Duration::from_millis(500), "an idle hal-sim used {used:?} of CPU in 2 s");
+}
+
+/// User and system CPU time of process `pid` so far (/proc/PID/stat).
+fn cpu_time(pid: u32) -> Duration {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap();
+    // The fields after the command's closing parenthesis; utime and stime are the 12th and 13th.
+    let fields: Vec<&str> = stat.rsplit_once(')').unwrap().1.split_whitespace().collect();
+    let ticks: u64 = fields[11].parse::<u64>().unwrap() + fields[12].parse::<u64>().unwrap();
+    // SAFETY: sysconf takes no pointers.
+    let per_second = u64::try_from(unsafe { libc::sysconf(libc::_SC_CLK_TCK) }).unwrap();
+    Duration::from_millis(ticks * 1000 / per_second)
+}

@@ -15,6 +15,13 @@
 //!
 //! The loop (this file) uses all three; `time` uses `wake`, to wake the loop
 //! when a timer is set from another thread. Nothing here uses the loop.
+//!
+//! Busy polling (`--busy-poll US`, off by default): when its tasks are all
+//! waiting, the loop looks at its descriptors without blocking for up to
+//! that long before it sleeps. A request that comes within it is served
+//! without the kernel waking the loop's thread, which in a VM is waking an
+//! idle vCPU: most of a one-connection round trip (BENCHMARKS.md). The
+//! price is a CPU kept busy while a client sends faster than the spin.
 
 mod fd;
 mod time;
@@ -36,6 +43,11 @@ use self::wake::Signal;
 /// (a few hundred microseconds) make this `ppoll(2)` one per 38 requests at
 /// 8 connections; at 8 rounds it was one per 8 (strace -c).
 const MAX_BUSY_ROUNDS: u32 = 64;
+
+/// The longest busy poll `--busy-poll` takes, in microseconds: a spin
+/// longer than a millisecond would only burn the CPU (a client that waits
+/// that long between requests gains nothing measurable from it).
+pub const MAX_BUSY_POLL_US: u64 = 1_000;
 
 thread_local! {
     /// The loop's rounds so far. A round polls each task woken before it
@@ -77,30 +89,41 @@ impl std::task::Wake for WakeCount {
 pub struct Executor {
     inner: raw::Executor,
     sleep: Sleep,
+    /// How long the loop polls without blocking before it sleeps (zero: off).
+    busy_poll: embassy_time::Duration,
     not_send: PhantomData<*mut ()>,
 }
 
 impl std::fmt::Debug for Executor {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Executor").field("sleep", &self.sleep).finish_non_exhaustive()
+        f.debug_struct("Executor")
+            .field("sleep", &self.sleep)
+            .field("busy_poll", &self.busy_poll)
+            .finish_non_exhaustive()
     }
 }
 
 impl Executor {
-    /// The loop; fails only if the kernel gives no eventfd.
-    pub fn new() -> io::Result<Self> {
+    /// The loop, busy polling for `busy_poll_us` microseconds (at most
+    /// [`MAX_BUSY_POLL_US`]; zero: never) before each sleep; fails only if the
+    /// kernel gives no eventfd.
+    pub fn new(busy_poll_us: u64) -> io::Result<Self> {
         let signal = Signal::new()?;
         let inner = raw::Executor::new(signal.context());
-        Ok(Self { inner, sleep: Sleep { signal, pollfds: Vec::new() }, not_send: PhantomData })
+        let busy_poll = embassy_time::Duration::from_micros(busy_poll_us.min(MAX_BUSY_POLL_US));
+        Ok(Self { inner, sleep: Sleep { signal, pollfds: Vec::new() }, busy_poll, not_send: PhantomData })
     }
 
     /// Runs `init` with a spawner, then the tasks, forever, on this thread.
     pub fn run(&'static mut self, init: impl FnOnce(Spawner)) -> ! {
-        let Self { inner, sleep, .. } = self;
+        let Self { inner, sleep, busy_poll, .. } = self;
+        let busy_poll = *busy_poll;
         let signal = sleep.signal;
         signal.enter();
         init(inner.spawner());
         let mut busy_rounds = 0;
+        // When the tasks last found nothing to do (busy polling since).
+        let mut idle_since = None;
         loop {
             next_round();
             signal.clear();
@@ -111,14 +134,26 @@ impl Executor {
             let busy = signal.sleep();
             if !busy {
                 let asleep = embassy_time::Instant::now();
-                sleep.wait(Some(time::until(alarm)).filter(|_| alarm != u64::MAX));
+                let since = *idle_since.get_or_insert(asleep);
+                if asleep.saturating_duration_since(since) < busy_poll {
+                    // A poll that returns at once; the timers are looked at
+                    // each round, so none is late for it.
+                    sleep.wait(Some(0));
+                } else {
+                    sleep.wait(Some(time::until(alarm)).filter(|_| alarm != u64::MAX));
+                    idle_since = None;
+                }
+                // Busy polling is waiting too: the load is the tasks' work.
                 adapter::load::CPU_LOAD.slept(asleep, embassy_time::Instant::now());
                 busy_rounds = 0;
-            } else if busy_rounds >= MAX_BUSY_ROUNDS {
-                sleep.wait(Some(0));
-                busy_rounds = 0;
             } else {
-                busy_rounds += 1;
+                idle_since = None;
+                if busy_rounds >= MAX_BUSY_ROUNDS {
+                    sleep.wait(Some(0));
+                    busy_rounds = 0;
+                } else {
+                    busy_rounds += 1;
+                }
             }
             signal.awake();
         }
