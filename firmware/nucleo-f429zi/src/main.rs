@@ -34,6 +34,8 @@ use defmt::unwrap;
 use defmt_rtt as _;
 use embassy_executor::Spawner;
 use embassy_net::Stack;
+// Its __aeabi_memcpy instead of compiler-builtins' (BENCHMARKS.md).
+use m4_memcpy as _;
 use panic_probe as _;
 use static_cell::StaticCell;
 
