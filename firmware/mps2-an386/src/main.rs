@@ -21,10 +21,9 @@ use adapter::settings::{Cidr, NetMode, NetworkSettings, Settings};
 #[cfg(feature = "http")]
 use adapter::{http::Controller, storage::Store};
 use defmt_semihosting as _;
-// Its __aeabi_memcpy instead of compiler-builtins' (BENCHMARKS.md).
 use embassy_executor::Spawner;
 use embassy_net::{Runner, Stack, StackResources};
-use m4_memcpy as _;
+use m4_memcpy as _; // its __aeabi_memcpy instead of compiler-builtins' (BENCHMARKS.md)
 mod board;
 #[cfg(feature = "http")]
 mod platform;
