@@ -313,7 +313,7 @@ fn link_loss_closes_the_sessions_and_the_link_s_return_brings_the_server_back() 
 
 /// m4-memcpy's `__aeabi_memcpy`, which both images link instead of
 /// compiler-builtins', on the core it is written for: the `memcpy-selftest`
-/// image, built beside the firmware, tries every length up to 80 bytes and
+/// image (scripts/test's firmware stage builds it) tries every length up to 80 bytes and
 /// some long ones at every alignment in QEMU's Cortex-M4 and exits 0 only
 /// if every byte, and every byte around each copy, is right.
 #[test]
