@@ -23,7 +23,7 @@ use adapter::{http::Controller, storage::Store};
 use defmt_semihosting as _;
 use embassy_executor::Spawner;
 use embassy_net::{Runner, Stack, StackResources};
-use m4_memcpy as _; // its __aeabi_memcpy instead of compiler-builtins' (BENCHMARKS.md)
+use m4_mem as _; // its copy, move and fill routines instead of compiler-builtins' (BENCHMARKS.md)
 mod board;
 #[cfg(feature = "http")]
 mod platform;

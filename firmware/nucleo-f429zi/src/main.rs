@@ -34,7 +34,7 @@ use defmt::unwrap;
 use defmt_rtt as _;
 use embassy_executor::Spawner;
 use embassy_net::Stack;
-use m4_memcpy as _; // its __aeabi_memcpy instead of compiler-builtins' (BENCHMARKS.md)
+use m4_mem as _; // its copy, move and fill routines instead of compiler-builtins' (BENCHMARKS.md)
 use panic_probe as _;
 use static_cell::StaticCell;
 
