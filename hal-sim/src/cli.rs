@@ -10,7 +10,10 @@ use std::path::PathBuf;
 use adapter::settings::{Cidr, Field, Name, NetMode, Settings};
 use sim_robot::Mode;
 
-pub use crate::runtime::MAX_BUSY_POLL_US;
+/// The longest busy poll `--busy-poll` takes, in microseconds: a spin
+/// longer than a millisecond would only burn the CPU (a client that waits
+/// that long between requests gains nothing measurable from it).
+pub const MAX_BUSY_POLL_US: u64 = 1_000;
 
 /// The first lines of the usage text; the settings follow, from the table.
 const USAGE_HEAD: &str = "\

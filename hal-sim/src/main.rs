@@ -154,7 +154,8 @@ fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>, fl
     if options.busy_poll_us > 0 {
         log::info!("busy polling: up to {} µs before each sleep", options.busy_poll_us);
     }
-    let executor: &'static mut Executor = match Executor::new(options.busy_poll_us) {
+    let executor: &'static mut Executor = match Executor::new(embassy_time::Duration::from_micros(options.busy_poll_us))
+    {
         Ok(executor) => Box::leak(Box::new(executor)),
         Err(e) => {
             eprintln!("hal-sim: cannot make its executor: {e}");

@@ -44,11 +44,6 @@ use self::wake::Signal;
 /// 8 connections; at 8 rounds it was one per 8 (strace -c).
 const MAX_BUSY_ROUNDS: u32 = 64;
 
-/// The longest busy poll `--busy-poll` takes, in microseconds: a spin
-/// longer than a millisecond would only burn the CPU (a client that waits
-/// that long between requests gains nothing measurable from it).
-pub const MAX_BUSY_POLL_US: u64 = 1_000;
-
 thread_local! {
     /// The loop's rounds so far. A round polls each task woken before it
     /// once; a task woken during the round is polled in the next one.
@@ -104,13 +99,11 @@ impl std::fmt::Debug for Executor {
 }
 
 impl Executor {
-    /// The loop, busy polling for `busy_poll_us` microseconds (at most
-    /// [`MAX_BUSY_POLL_US`]; zero: never) before each sleep; fails only if the
-    /// kernel gives no eventfd.
-    pub fn new(busy_poll_us: u64) -> io::Result<Self> {
+    /// The loop, busy polling for `busy_poll` (zero: never) before each
+    /// sleep; fails only if the kernel gives no eventfd.
+    pub fn new(busy_poll: embassy_time::Duration) -> io::Result<Self> {
         let signal = Signal::new()?;
         let inner = raw::Executor::new(signal.context());
-        let busy_poll = embassy_time::Duration::from_micros(busy_poll_us.min(MAX_BUSY_POLL_US));
         Ok(Self { inner, sleep: Sleep { signal, pollfds: Vec::new() }, busy_poll, not_send: PhantomData })
     }
 
