@@ -228,8 +228,9 @@ fn check_interface_name(name: &str) -> Result<(), UsageError> {
 #[allow(clippy::unwrap_used, clippy::panic, reason = "a failed step is a failed test")]
 mod tests {
     use super::*;
+    use adapter::device::SafeState;
     use adapter::map::WritePolicy;
-    use adapter::server::{Access, Policy, SafeState};
+    use adapter::server::{Access, Policy};
     use embassy_time::Duration;
 
     fn run(args: &[&str]) -> Result<Options, UsageError> {

@@ -40,7 +40,7 @@ type ModbusServer = Server<'static, Device<'static>>;
 type Api = Http<'static, SimController>;
 
 /// Sockets in the stack: the Modbus listeners, DHCP's, the HTTP listeners, mDNS's and the robot link's.
-const NET_SOCKETS: usize = adapter::net::STACK_SOCKETS;
+const NET_SOCKETS: usize = adapter::program::STACK_SOCKETS;
 
 /// The robot link (`--robot-link`, `robot.link`): the source of the robot's
 /// points while it is set; the simulated robot's otherwise.

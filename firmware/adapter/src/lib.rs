@@ -22,20 +22,20 @@
 #[macro_use]
 pub mod fmt;
 
+pub mod access;
 pub mod analog;
 pub mod device;
-#[cfg(feature = "cortex-m")]
-pub mod executor;
 #[cfg(feature = "http")]
 pub mod http;
-pub mod io;
 #[cfg(feature = "robot-link")]
 pub mod link;
 pub mod load;
 pub mod map;
 #[cfg(feature = "mdns")]
 pub mod mdns;
+pub mod name;
 pub mod net;
+pub mod program;
 pub mod server;
 pub mod settings;
 pub mod storage;
@@ -45,6 +45,10 @@ pub mod update;
 
 /// The wire codec this core speaks (its own crate: no map, no async).
 pub use modbus;
+
+/// The hardware seam a board implements (its own crate, as
+/// embassy-net-driver is the network's).
+pub use adapter_io as io;
 
 /// This firmware's version: Read Device Identification's MajorMinorRevision
 /// and `/api/status`'s `firmware`. (Registers 256-258 are the robot

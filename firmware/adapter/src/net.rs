@@ -86,24 +86,6 @@ pub fn static_config(settings: &NetworkSettings) -> Option<StaticConfigV4> {
 /// closes the sessions at most this late.
 pub const LINK_POLL: Duration = Duration::from_millis(100);
 
-/// Sockets a program's stack holds with this build's features: the Modbus
-/// listeners, DHCP's, the HTTP listeners (`http`), mDNS's (`mdns`) and the robot
-/// link's client (`robot-link`).
-pub const STACK_SOCKETS: usize = crate::server::SOCKET_POOL + 1 + HTTP_SOCKETS + MDNS_SOCKETS + LINK_SOCKETS;
-#[cfg(feature = "http")]
-const HTTP_SOCKETS: usize = crate::http::MAX_HTTP_CONNECTIONS;
-#[cfg(not(feature = "http"))]
-const HTTP_SOCKETS: usize = 0;
-#[cfg(feature = "mdns")]
-const MDNS_SOCKETS: usize = 1;
-#[cfg(not(feature = "mdns"))]
-const MDNS_SOCKETS: usize = 0;
-/// The robot link's client connection (`robot-link`).
-#[cfg(feature = "robot-link")]
-const LINK_SOCKETS: usize = 1;
-#[cfg(not(feature = "robot-link"))]
-const LINK_SOCKETS: usize = 0;
-
 /// Follows the link forever: configures the address on each link-up (DHCP
 /// with `name`'s name then) and closes the sessions on each link loss. One
 /// small state machine on a 100 ms tick ([`LINK_POLL`]): cheaper in flash

@@ -6,6 +6,11 @@
 
 use core::fmt;
 
+/// A text that is not a valid value of its type (every parser of the
+/// crate's values returns it: names, addresses, settings).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Invalid;
+
 /// The longest `u64` in decimal.
 pub const MAX_DIGITS: usize = 20;
 
@@ -50,6 +55,17 @@ fn decimal_u64(mut value: u64, buf: &mut [u8; MAX_DIGITS]) -> &str {
 /// Writes `value` in decimal.
 pub fn write_decimal(out: &mut dyn fmt::Write, value: impl Unsigned) -> fmt::Result {
     out.write_str(decimal(value, &mut [0; MAX_DIGITS]))
+}
+
+/// Writes a version as `major.minor.patch`.
+pub fn write_version(out: &mut dyn fmt::Write, version: crate::io::Version) -> fmt::Result {
+    for (i, part) in version.registers().into_iter().enumerate() {
+        if i > 0 {
+            out.write_str(".")?;
+        }
+        write_decimal(out, part)?;
+    }
+    Ok(())
 }
 
 /// Writes `a.b.c.d`.

@@ -40,7 +40,7 @@ use lan9118::Lan9118;
 use static_cell::StaticCell;
 
 /// Sockets the stack holds (the Modbus listeners, DHCP's, HTTP's, mDNS's).
-const SOCKETS: usize = adapter::net::STACK_SOCKETS;
+const SOCKETS: usize = adapter::program::STACK_SOCKETS;
 
 /// The board, as Read Device Identification (ModelName), `/api/status` and mDNS's TXT name it.
 pub const MODEL: &str = "mps2-an386";
@@ -207,7 +207,7 @@ fn spawn_all(
     spawner.spawn(link_task(stack, &settings.network, server, names)?);
     #[cfg(feature = "mdns")]
     {
-        let services = adapter::mdns::Services::of_board(MODEL, server.config().port);
+        let services = adapter::program::mdns_services(MODEL, server.config().port);
         spawner.spawn(mdns_task(stack, names, services)?);
     }
     spawner.spawn(refresh_task(device)?);

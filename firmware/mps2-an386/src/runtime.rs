@@ -1,6 +1,6 @@
 //! The executor loop, faults, panics and the way out of QEMU.
 //!
-//! The executor loop is `adapter::executor`'s: it sleeps with `wfi` (the
+//! The executor loop is `cortex_m_support`'s: it sleeps with `wfi` (the
 //! stock cortex-m executor's `wfe` is a busy loop in QEMU, a host core at
 //! 100 %; `wfi` keeps it at about 10 % when idle) and measures the CPU
 //! load. A panic or a fault logs through defmt and ends QEMU through
@@ -17,10 +17,10 @@ pub const EXIT_PANIC: i32 = 101;
 /// QEMU's exit code after a hard fault or an unexpected exception.
 pub const EXIT_FAULT: i32 = 102;
 
-/// Runs the executor forever (`adapter::executor`: `wfi` between polls,
+/// Runs the executor forever (`cortex_m_support`: `wfi` between polls,
 /// each sleep reported to the CPU load meter): `init` spawns the first tasks.
 pub fn run(init: impl FnOnce(Spawner)) -> ! {
-    adapter::executor::run(init)
+    cortex_m_support::run(init, |from, to| adapter::load::CPU_LOAD.slept(from, to))
 }
 
 /// Ends the QEMU process with `code` (semihosting `SYS_EXIT_EXTENDED`).

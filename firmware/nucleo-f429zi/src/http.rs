@@ -118,7 +118,7 @@ impl Platform for Nucleo {
 
     fn reboot(&self) {
         defmt::info!("rebooting (SYSRESETREQ)");
-        cortex_m::peripheral::SCB::sys_reset()
+        cortex_m_support::reboot()
     }
 
     fn locate(&self, duration: Duration) {
@@ -154,6 +154,6 @@ impl Platform for Nucleo {
         &self,
         body: &mut adapter::http::request::Stream<'_, R>,
     ) -> Result<adapter::io::Version, adapter::http::FirmwareRefusal> {
-        crate::update::UPDATE.receive(body).await
+        adapter::http::receive_update(&crate::update::UPDATE, body).await
     }
 }

@@ -72,8 +72,11 @@ pub static ROBOT_LINK: adapter::link::Link = adapter::link::Link::new();
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
-    // The executor loop measures the CPU load (adapter::executor).
-    adapter::executor::run(|spawner| spawner.spawn(unwrap!(start(spawner))))
+    // The executor loop measures the CPU load (cortex_m_support).
+    cortex_m_support::run(
+        |spawner| spawner.spawn(unwrap!(start(spawner))),
+        |from, to| adapter::load::CPU_LOAD.slept(from, to),
+    )
 }
 
 /// Brings the board up, loads the settings and starts every task.
@@ -160,7 +163,7 @@ async fn start(spawner: Spawner) {
     }
     #[cfg(feature = "mdns")]
     {
-        let services = adapter::mdns::Services::of_board(MODEL, server.config().port);
+        let services = adapter::program::mdns_services(MODEL, server.config().port);
         spawner.spawn(unwrap!(mdns_task(stack, names, services)));
     }
     let config = server.config();

@@ -24,7 +24,7 @@ pub const RX_PACKETS: usize = 4;
 pub const TX_PACKETS: usize = 3;
 /// Sockets in the stack: the Modbus listeners and DHCP's (and the HTTP
 /// listeners with the `http` feature, mDNS's with `mdns`).
-pub const NET_SOCKETS: usize = adapter::net::STACK_SOCKETS;
+pub const NET_SOCKETS: usize = adapter::program::STACK_SOCKETS;
 
 /// The DMA descriptors and frame buffers (in SRAM: the MAC's DMA cannot reach CCM RAM).
 pub fn packets() -> &'static mut PacketQueue<TX_PACKETS, RX_PACKETS> {

@@ -29,7 +29,7 @@ use core::fmt;
 use embassy_time::Instant;
 use libm::{atan2f, cosf, expf, roundf, sinf, sqrtf};
 
-use adapter::io::{Robot, RobotState, RobotStatus, SafetyStop, Six, Telemetry, Version};
+use adapter_io::{Robot, RobotState, RobotStatus, SafetyStop, Six, Telemetry, Version};
 
 /// What the simulated controller does once it is up.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -1,10 +1,11 @@
 //! The device state that every task shares: the process image, the outputs
 //! it drives, the communication watchdog, the diagnostics counters and the
 //! 100 ms refresh from the inputs and the robot. The Modbus server
-//! ([`crate::server`]) reaches it through [`crate::server::Service`]; the
-//! boards push input edges and robot events into it.
+//! ([`crate::server`]) answers with it through [`Service`], which it
+//! implements here; the boards push input edges and robot events into it.
 
-mod stats;
+#[cfg(feature = "update")]
+mod firmware;
 mod watchdog;
 
 use core::cell::RefCell;
@@ -13,15 +14,16 @@ use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_time::{Duration, Instant, Ticker};
 
-pub use self::stats::{Counters, Stats};
+#[cfg(feature = "update")]
+pub use self::firmware::{BootState, FirmwareStatus};
 pub use self::watchdog::{SafeState, Watchdog};
 use crate::io::{InputPins, OutputPins, Robot, RobotSample, RobotStatus};
 use crate::map::Image;
 use crate::map::table::reg;
 use crate::modbus::mbap::MAX_ADU_LEN;
-use crate::server::Identity;
+use crate::name::Name;
 use crate::server::handler::{self, Context, Outcome, Policy};
-use crate::settings::Name;
+use crate::server::{Identity, Service, Stats};
 
 /// How often the source-backed points are refreshed and re-asserted.
 pub const REFRESH_PERIOD: Duration = Duration::from_millis(100);
@@ -34,11 +36,11 @@ struct State {
     monitor: watchdog::Monitor,
     /// The firmware update's state, once the board has set it.
     #[cfg(feature = "update")]
-    update: Option<crate::update::Status>,
+    update: Option<FirmwareStatus>,
     /// Its previous version as Read Device Identification's object 0x80
     /// sends it, written when the state is set rather than at each request.
     #[cfg(feature = "update")]
-    previous_text: heapless::String<{ crate::server::identity::MAX_VERSION_LEN }>,
+    previous_text: heapless::String<{ crate::io::Version::MAX_TEXT_LEN }>,
 }
 
 /// The shared device: the image behind a blocking mutex (held while one
@@ -98,7 +100,7 @@ impl<'a> Device<'a> {
 
     /// The firmware update's state (`None` until the board sets it).
     #[cfg(feature = "update")]
-    pub fn firmware_update(&self) -> Option<crate::update::Status> {
+    pub fn firmware_update(&self) -> Option<FirmwareStatus> {
         self.state.lock(|state| state.borrow().update)
     }
 
@@ -106,7 +108,7 @@ impl<'a> Device<'a> {
     /// state and the other image's record. From then on Read Device
     /// Identification has the previous firmware's object (0x80).
     #[cfg(feature = "update")]
-    pub fn set_firmware_update(&self, status: crate::update::Status) {
+    pub fn set_firmware_update(&self, status: FirmwareStatus) {
         self.state.lock(|state| {
             let state = &mut *state.borrow_mut();
             state.update = Some(status);
@@ -116,10 +118,10 @@ impl<'a> Device<'a> {
 
     /// Changes the update's state (a confirmation, an upload armed), once set.
     #[cfg(feature = "update")]
-    pub fn set_firmware_update_state(&self, boot_state: crate::update::BootState) {
+    pub fn set_firmware_update_state(&self, boot_state: BootState) {
         self.state.lock(|state| {
             let update = &mut state.borrow_mut().update;
-            *update = update.map(|status| crate::update::Status { state: boot_state, ..status });
+            *update = update.map(|status| FirmwareStatus { state: boot_state, ..status });
         });
     }
 
@@ -248,6 +250,17 @@ impl<'a> Device<'a> {
                 image.set_telemetry(&telemetry);
             }
         });
+    }
+}
+
+/// The server answers with the device.
+impl Service for Device<'_> {
+    fn respond(&self, frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], policy: &Policy, name: &Name) -> Outcome {
+        Device::respond(self, frame, reply, policy, name)
+    }
+
+    fn stats(&self) -> &Stats {
+        Device::stats(self)
     }
 }
 

@@ -6,6 +6,7 @@ use embassy_time::Duration;
 use super::*;
 use crate::io::{AnalogType, NoRobot, RobotState, RobotStatus, Telemetry, Version};
 use crate::map::WritePolicy;
+use crate::server::Counters;
 use crate::server::testing::{Clock, RecordingPins};
 use crate::settings::Name;
 use test_support::framer::adu;

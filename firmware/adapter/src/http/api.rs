@@ -179,7 +179,7 @@ impl<B: Backend> Api<'_, '_, B> {
         let reply = match self.backend().receive_firmware(&mut body).await {
             Ok(version) => {
                 out.text("{\"firmware\":{\"version\":");
-                out.string_with(|w| version.write_to(w));
+                out.string_with(|w| text::write_version(w, version));
                 out.text(",\"rebooting\":true}}");
                 return Ok((Reply::new(Status::ACCEPTED), Some(Action::Reboot)));
             }
@@ -379,7 +379,7 @@ impl<B: Backend> Api<'_, '_, B> {
         out.text(",\"model\":");
         out.string(backend.model());
         out.text(",\"firmware\":");
-        out.string_with(|w| crate::VERSION.write_to(w));
+        out.string_with(|w| text::write_version(w, crate::VERSION));
         out.text(",\"uptime_s\":");
         out.number(now.as_secs());
         out.text(",\"cpu_load_percent\":");
@@ -460,7 +460,7 @@ impl<B: Backend> Api<'_, '_, B> {
                 out.text("{\"state\":");
                 out.string(update.state.as_str());
                 out.text(",\"previous\":");
-                optional(out, update.previous, |out, previous| out.string_with(|w| previous.write_to(w)));
+                optional(out, update.previous, |out, previous| out.string_with(|w| text::write_version(w, previous)));
                 out.text(",\"capacity\":");
                 out.number(update.capacity);
                 out.text("}");

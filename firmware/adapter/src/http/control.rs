@@ -213,7 +213,7 @@ impl<F: NorFlash, P: Platform> Backend for Controller<'_, F, P> {
 
     fn robot_link(&self) -> Option<RobotLinkStatus> {
         #[cfg(feature = "robot-link")]
-        return self.platform.link().and_then(crate::link::Link::http_status);
+        return self.platform.link().and_then(|link| robot_link_status(link.status()));
         #[cfg(not(feature = "robot-link"))]
         None
     }
@@ -247,6 +247,15 @@ impl<F: NorFlash, P: Platform> crate::net::DeviceName for Controller<'_, F, P> {
     }
 }
 
+/// The link's health as `/api/status` reports it (`connected` is the
+/// link being up); `None` while no link is set.
+#[cfg(feature = "robot-link")]
+fn robot_link_status(status: crate::link::Status) -> Option<RobotLinkStatus> {
+    status.target?;
+    let last_ok_ms = status.last_ok.map(|at| u32::try_from(at.elapsed().as_millis()).unwrap_or(u32::MAX));
+    Some(RobotLinkStatus { connected: status.up, polls: status.polls, errors: status.errors, last_ok_ms })
+}
+
 #[cfg(test)]
 mod tests {
     use core::cell::Cell;
@@ -255,8 +264,9 @@ mod tests {
     use embassy_futures::block_on;
 
     use super::*;
+    use crate::device::Watchdog;
+    use crate::server::Config;
     use crate::server::testing::{Clock, server_with};
-    use crate::server::{Config, Watchdog};
     use crate::settings::Field;
     use crate::storage::flash::RuleFlash;
 

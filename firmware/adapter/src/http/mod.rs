@@ -268,9 +268,31 @@ fn refusal(out: &mut Out<'_>, error: Error) -> api::Reply {
     api::Reply::new(status)
 }
 
+/// Feeds an upload from `body` into the board's updater
+/// ([`feed_update`]): what a board's [`Platform::receive_firmware`] does.
+/// Unsupported without an updater.
+#[cfg(feature = "update")]
+pub async fn receive_update<M, D, S, R>(
+    update: &crate::update::boot::BoardUpdate<M, D, S>,
+    body: &mut request::Stream<'_, R>,
+) -> Result<crate::io::Version, FirmwareRefusal>
+where
+    M: embassy_sync::blocking_mutex::raw::RawMutex,
+    D: embedded_storage_async::nor_flash::NorFlash,
+    S: embedded_storage_async::nor_flash::NorFlash,
+    R: Read,
+{
+    let Some(updater) = update.updater() else { return Err(FirmwareRefusal::Unsupported) };
+    let received = feed_update(&mut *updater.lock().await, body).await;
+    match &received {
+        Ok(_version) => info!("update: {:?} received and armed; rebooting into it", _version),
+        Err(_refusal) => warn!("update: refused: {:?}", _refusal),
+    }
+    received
+}
+
 /// Feeds an update file from `body` into `updater` (begin, each chunk,
-/// finish): what a board's [`Platform::receive_firmware`] does with its
-/// updater. On any error the upload is dropped and nothing is armed.
+/// finish). On any error the upload is dropped and nothing is armed.
 #[cfg(feature = "update")]
 pub async fn feed_update<D, S, R>(
     updater: &mut crate::update::Updater<'_, D, S>,

@@ -12,8 +12,9 @@ use test_support::duplex::{Wire, poll_once};
 
 use super::{Action, Backend, Buffers, Error, Http, NetworkStatus, Refusal, serve};
 use crate::device::Device;
+use crate::device::Watchdog;
 use crate::server::testing::{Clock, server_with};
-use crate::server::{Config, Server, Watchdog};
+use crate::server::{Config, Server};
 use crate::settings::{Cidr, NetMode, Settings};
 
 /// The client the tests talk from (`ALLOWED` is in `allow_write` when one is set).

@@ -689,20 +689,20 @@ mod firmware {
 
     #[test]
     fn the_status_says_the_update_state_the_previous_version_and_the_capacity() {
-        use crate::update::{BootState, Status};
+        use crate::device::{BootState, FirmwareStatus};
         let clock = Clock::take();
         let http = api();
         let device = http.backend().server().service();
         assert_eq!(get(http, &clock, "/api/status").json()["update"], serde_json::Value::Null, "not set yet");
         // What the board sets at boot, then when it confirms.
         let previous = Some(crate::io::Version { major: 0, minor: 1, patch: 7 });
-        device.set_firmware_update(Status { state: BootState::Trial, previous, capacity: 1_234 });
+        device.set_firmware_update(FirmwareStatus { state: BootState::Trial, previous, capacity: 1_234 });
         let status = get(http, &clock, "/api/status").json();
         assert_eq!(status["update"], json!({"state": "trial", "previous": "0.1.7", "capacity": 1234}));
         device.set_firmware_update_state(BootState::Confirmed);
         let status = get(http, &clock, "/api/status").json();
         assert_eq!(status["update"], json!({"state": "confirmed", "previous": "0.1.7", "capacity": 1234}));
-        device.set_firmware_update(Status { state: BootState::RolledBack, previous: None, capacity: 1_234 });
+        device.set_firmware_update(FirmwareStatus { state: BootState::RolledBack, previous: None, capacity: 1_234 });
         let status = get(http, &clock, "/api/status").json();
         assert_eq!(status["update"], json!({"state": "rolled_back", "previous": null, "capacity": 1234}));
     }

@@ -40,7 +40,7 @@ use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Timer, with_timeout};
 use embedded_io_async::Write as _;
 
-use crate::device::{Device, Stats};
+use crate::device::Device;
 use crate::io::{Robot, RobotSample, RobotStatus, Telemetry, Version};
 use crate::map::table::{self, reg};
 use crate::map::{Access, Image};
@@ -48,6 +48,7 @@ use crate::modbus::client::{REQUEST_ADU_LEN, ReadHoldingRegisters, ReplyError};
 use crate::modbus::mbap::{self, MAX_ADU_LEN};
 use crate::modbus::pdu::MAX_READ_REGISTERS;
 use crate::server::CLOSE_TIMEOUT;
+use crate::server::Stats;
 use crate::settings::{RobotLink, RobotSettings};
 
 /// The socket's receive buffer: one reply at a time, the largest ADU.
@@ -201,21 +202,6 @@ impl Link {
     /// The link's health now.
     pub fn status(&self) -> Status {
         self.state.lock(|state| state.borrow().status)
-    }
-
-    /// The link's health as `/api/status` reports it (`connected` is the
-    /// link being up); `None` while no link is set.
-    #[cfg(feature = "http")]
-    pub fn http_status(&self) -> Option<crate::http::RobotLinkStatus> {
-        let status = self.status();
-        status.target?;
-        let last_ok_ms = status.last_ok.map(|at| u32::try_from(at.elapsed().as_millis()).unwrap_or(u32::MAX));
-        Some(crate::http::RobotLinkStatus {
-            connected: status.up,
-            polls: status.polls,
-            errors: status.errors,
-            last_ok_ms,
-        })
     }
 
     fn target_and_period(&self) -> Option<(RobotLink, Duration)> {

@@ -68,14 +68,12 @@ pub enum Encoding {
     Signed,
 }
 
-/// The analog type register value for current (µA) mode.
-pub const ANALOG_CURRENT: u16 = 0;
-/// The analog type register value for voltage (mV) mode.
-pub const ANALOG_VOLTAGE: u16 = 1;
-/// The largest analog value in current mode: 20 mA in µA.
-pub const ANALOG_MAX_MICROAMPS: u16 = 20_000;
-/// The largest analog value in voltage mode: 10 V in mV.
-pub const ANALOG_MAX_MILLIVOLTS: u16 = 10_000;
+/// The analog type register's values and each type's range, as the
+/// hardware seam defines them.
+pub use crate::io::analog::{
+    CURRENT as ANALOG_CURRENT, MAX_MICROAMPS as ANALOG_MAX_MICROAMPS, MAX_MILLIVOLTS as ANALOG_MAX_MILLIVOLTS,
+    VOLTAGE as ANALOG_VOLTAGE,
+};
 /// Robot state NOT READY: what a gateway with no robot source reports.
 pub const ROBOT_NOT_READY: u16 = 15;
 

@@ -73,16 +73,6 @@ pub struct Services {
 }
 
 impl Services {
-    /// A board's services: this firmware's version, Modbus on `modbus_port`,
-    /// and HTTP on [`crate::http::HTTP_PORT`] when the build has the API.
-    pub fn of_board(model: &'static str, modbus_port: u16) -> Self {
-        #[cfg(feature = "http")]
-        let http_port = Some(crate::http::HTTP_PORT);
-        #[cfg(not(feature = "http"))]
-        let http_port = None;
-        Self { model, version: crate::VERSION, modbus_port, http_port }
-    }
-
     /// The port of `service`, if the device offers it.
     pub fn port(&self, service: Service) -> Option<u16> {
         match service {

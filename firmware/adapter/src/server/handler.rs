@@ -7,8 +7,8 @@
 //! Identification answers from the [`Identity`]; Diagnostics echoes, or
 //! reads or clears the counters.
 
+use super::Stats;
 use super::identity::Identity;
-use crate::device::Stats;
 use crate::map::{Image, WritePolicy, Written};
 use crate::modbus::diagnostics::Diagnostic;
 use crate::modbus::mbap::{self, Frame, Header, MAX_ADU_LEN};
@@ -25,7 +25,7 @@ pub struct Policy {
     pub write_policy: WritePolicy,
     /// The client may not write: its write functions (05, 06, 0F, 10) and
     /// Diagnostics' Clear Counters get exception 01, as functions it is not
-    /// allowed (see [`super::access`] and [`pdu::is_write`]).
+    /// allowed (see [`crate::access`] and [`pdu::is_write`]).
     pub read_only: bool,
 }
 

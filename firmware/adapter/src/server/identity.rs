@@ -21,7 +21,7 @@
 use crate::modbus::Exception;
 use crate::modbus::identification::{ReadDeviceIdCode, Writer, object};
 use crate::modbus::mbap::MAX_PDU_LEN;
-use crate::settings::{MAX_NAME_LEN, Name};
+use crate::name::{MAX_NAME_LEN, Name};
 
 /// VendorName (object 0). The project is its own vendor.
 pub const VENDOR_NAME: &str = "mbio";
@@ -43,7 +43,7 @@ pub const EXTENDED_CONFORMITY_LEVEL: u8 = 0x83;
 /// The private object with the previous firmware's version.
 pub const PREVIOUS_FIRMWARE: u8 = object::FIRST_EXTENDED;
 /// The longest version text (`65535.65535.65535`).
-pub const MAX_VERSION_LEN: usize = 17;
+pub const MAX_VERSION_LEN: usize = crate::io::Version::MAX_TEXT_LEN;
 
 /// The longest response to a stream of the regular set (code 02 from object
 /// 0): the header, then all seven objects at their longest.

@@ -1,15 +1,16 @@
-//! The Modbus TCP server: who may connect and write ([`access`]), the
-//! sessions over any `embedded-io-async` stream ([`serve`]), the connection
-//! slots with eviction ([`Slots`]), and the embassy-net listener
-//! ([`listen`]). It answers through a [`Service`] (the device), and knows
-//! nothing of pins or boards.
+//! The Modbus TCP server: who may connect and write (the allow-lists of
+//! [`crate::access`]), the sessions over any `embedded-io-async` stream
+//! ([`serve`]), the connection slots with eviction ([`Slots`]), the
+//! counters of what it sees ([`Stats`]) and the embassy-net listener
+//! ([`listen`]). It answers through a [`Service`], which the device
+//! implements; it knows nothing of the device, pins or boards.
 
-pub mod access;
 pub mod handler;
 pub mod identity;
 mod listener;
 mod session;
 mod slots;
+mod stats;
 
 use core::cell::RefCell;
 
@@ -17,7 +18,7 @@ use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_time::Duration;
 
-pub use access::{Access, AllowList, Network};
+pub use crate::access::{Access, AllowList, Network};
 pub use handler::{Context, Outcome, Policy};
 pub use identity::Identity;
 pub use listener::{CLOSE_TIMEOUT, SOCKET_RX_LEN, SOCKET_TX_LEN, listen};
@@ -26,9 +27,9 @@ pub(crate) use listener::{Peer, close};
 pub use session::{Error, SESSION_BUFFER_LEN, serve};
 pub use slots::{Session, SlotId, Slots};
 
-pub use crate::device::{Counters, SafeState, Stats, Watchdog};
 use crate::modbus::mbap::MAX_ADU_LEN;
-use crate::settings::Name;
+use crate::name::Name;
+pub use stats::{Counters, Stats};
 
 /// The Modbus TCP port (Implementation Guide V1.0b, 4.1).
 pub const MODBUS_PORT: u16 = 502;
@@ -59,7 +60,7 @@ pub const IDLE_TIMEOUT: Duration = Duration::from_secs(60);
 /// Default for [`Config::frame_timeout`].
 pub const FRAME_TIMEOUT: Duration = Duration::from_secs(2);
 
-/// How the server runs: made from the settings ([`crate::settings::Settings::server_config`]).
+/// How the server runs: made from the settings (their `server_config`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Config {
@@ -107,16 +108,6 @@ pub trait Service {
     fn respond(&self, frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], policy: &Policy, name: &Name) -> Outcome;
     /// Where the server counts what it sees.
     fn stats(&self) -> &Stats;
-}
-
-impl Service for crate::device::Device<'_> {
-    fn respond(&self, frame: &[u8], reply: &mut [u8; MAX_ADU_LEN], policy: &Policy, name: &Name) -> Outcome {
-        crate::device::Device::respond(self, frame, reply, policy, name)
-    }
-
-    fn stats(&self) -> &Stats {
-        crate::device::Device::stats(self)
-    }
 }
 
 /// The server: its configuration in force (changed at once by

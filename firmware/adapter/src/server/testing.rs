@@ -47,7 +47,7 @@ pub const MODEL: &str = "test-board";
 /// A server over a fresh device with recording pins (both leaked: tests only).
 pub fn server_with(
     config: super::Config,
-    watchdog: super::Watchdog,
+    watchdog: crate::device::Watchdog,
 ) -> (&'static super::Server<'static, crate::device::Device<'static>>, &'static RecordingPins) {
     let pins: &'static RecordingPins = Box::leak(Box::default());
     let device = Box::leak(Box::new(crate::device::Device::new(watchdog, MODEL, pins)));

@@ -9,6 +9,7 @@ use test_support::framer::{adu, split_replies};
 
 use super::testing::{Clock, RecordingPins, server_with};
 use super::*;
+use crate::device::Watchdog;
 use crate::modbus::mbap::MAX_ADU_LEN;
 
 const WRITE_COIL_16_ON: [u8; 5] = [0x05, 0x00, 0x10, 0xff, 0x00];

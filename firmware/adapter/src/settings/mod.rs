@@ -17,13 +17,14 @@ mod values;
 use core::fmt;
 
 pub use self::parse::{Cidr, Invalid, Ipv4};
-pub use self::values::{MAX_NAME_LEN, Name, NetMode, RobotLink};
+pub use self::values::{NetMode, RobotLink};
+use crate::access::{Access, AllowList, Network};
+use crate::device::{SafeState, Watchdog};
 use crate::map::WritePolicy;
 use crate::map::table::{ANALOG_MAX_MICROAMPS, TOOL_PINS};
-use crate::server::access::{Access, AllowList, Network};
+pub use crate::name::{MAX_NAME_LEN, Name};
 use crate::server::handler::Policy;
 use crate::server::{self, MAX_CONNECTIONS};
-use crate::server::{SafeState, Watchdog};
 use crate::text;
 use embassy_time::Duration;
 

@@ -8,12 +8,10 @@
 
 use core::fmt;
 
-use crate::server::access::{AllowList, Network};
+use crate::access::{AllowList, Network};
 use crate::text;
 
-/// A text that is not a valid value of its type.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Invalid;
+pub use crate::text::Invalid;
 
 /// A decimal number of at most 9 digits.
 pub const fn decimal(text: &str) -> Option<u64> {

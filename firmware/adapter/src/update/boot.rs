@@ -1,6 +1,6 @@
 //! What a board with `update` does with its [`Updater`], the same on
 //! every board (docs/update.md): a [`BoardUpdate`] holds it, made once at
-//! start, for the HTTP upload ([`BoardUpdate::receive`]) and for the
+//! start, for the upload ([`BoardUpdate::updater`]) and for the
 //! confirmation ([`BoardUpdate::confirm_when_serving`]: read the boot state
 //! and the other image's version, report them on the [`Device`], and
 //! confirm an image on trial once it serves); its [`Trial`] flag is what
@@ -15,9 +15,8 @@ use embassy_sync::mutex::Mutex;
 use embassy_sync::once_lock::OnceLock;
 use embedded_storage_async::nor_flash::NorFlash;
 
-use super::{BootState, Config, ImageLayout, Status, Updater};
+use super::{BootState, Config, FirmwareStatus, ImageLayout, Updater};
 use crate::device::Device;
-use crate::http::{FirmwareRefusal, request};
 
 /// How long an image on trial has to confirm itself, from its start
 /// (DEVICE.md section 5): after that the board's watchdog resets it.
@@ -115,20 +114,10 @@ impl<M: RawMutex, DFU: NorFlash, STATE: NorFlash> BoardUpdate<M, DFU, STATE> {
         &self.trial
     }
 
-    /// Feeds an upload from `body` into the updater
-    /// ([`crate::http::feed_update`]): what the board's
-    /// `Platform::receive_firmware` does. Unsupported without an updater.
-    pub async fn receive<R: embedded_io_async::Read>(
-        &self,
-        body: &mut request::Stream<'_, R>,
-    ) -> Result<crate::io::Version, FirmwareRefusal> {
-        let Some(updater) = self.updater.try_get() else { return Err(FirmwareRefusal::Unsupported) };
-        let received = crate::http::feed_update(&mut *updater.lock().await, body).await;
-        match &received {
-            Ok(_version) => info!("update: {:?} received and armed; rebooting into it", _version),
-            Err(_refusal) => warn!("update: refused: {:?}", _refusal),
-        }
-        received
+    /// The updater, once [`Self::install`] made it: what an upload feeds
+    /// (the HTTP API's `receive_update`).
+    pub fn updater(&self) -> Option<&Mutex<M, Updater<'static, DFU, STATE>>> {
+        self.updater.try_get()
     }
 
     /// Reads the boot state and the other image's version (by `layout`),
@@ -148,7 +137,7 @@ impl<M: RawMutex, DFU: NorFlash, STATE: NorFlash> BoardUpdate<M, DFU, STATE> {
                     let previous = updater.other_image(layout).await.unwrap_or(None);
                     let capacity = u32::try_from(updater.capacity()).unwrap_or(u32::MAX);
                     info!("update: boot state {:?}, previous firmware {:?}", state, previous);
-                    device.set_firmware_update(Status { state, previous, capacity });
+                    device.set_firmware_update(FirmwareStatus { state, previous, capacity });
                     self.trial.set(state);
                 }
                 Err(_error) => {

@@ -47,6 +47,7 @@ use embedded_storage_async::nor_flash::{NorFlash, NorFlashError, NorFlashErrorKi
 
 pub mod boot;
 
+pub use crate::device::{BootState, FirmwareStatus};
 pub use update_image::{self as image, Board, FormatError, HEADER_LEN, Header, SignatureError, Version};
 
 // PUBLIC_KEY and DEVELOPMENT_KEY, from the key file build.rs read.
@@ -59,24 +60,6 @@ pub const BLOCK_LEN: usize = 512;
 /// The longest state-partition word (embassy-boot's aligned buffer): the
 /// buffer [`Updater::new`] takes must hold the state flash's word.
 pub const MAX_STATE_WORD: usize = 32;
-
-/// What the bootloader's state partition says.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum BootState {
-    /// Nothing pending: the running image is confirmed (or was never swapped in).
-    Confirmed,
-    /// The running image was swapped in and is on trial: [`Updater::confirm`]
-    /// it, or the next reset rolls back to the previous one.
-    Trial,
-    /// This run armed a swap ([`Updater::finish`]): the next reset installs it.
-    Armed,
-    /// The bootloader rolled back: the image swapped in last did not confirm
-    /// itself, and the previous one runs again.
-    RolledBack,
-    /// embassy-boot's USB DFU mark (this device does not use it).
-    DfuDetach,
-}
 
 /// Why an upload, or a state change, was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -583,45 +566,6 @@ impl<DFU: NorFlash, STATE: NorFlash> Updater<'_, DFU, STATE> {
         let mut record = [0u8; IMAGE_INFO_LEN];
         self.dfu.read(at, &mut record).await.map_err(flash_error)?;
         Ok(parse_image_info(&record))
-    }
-}
-
-/// What `/api/status` and Read Device Identification say about updates
-/// (DEVICE.md section 5): the board sets it on the device at boot
-/// ([`crate::device::Device::set_firmware_update`]), and the API when an upload is armed.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct Status {
-    pub state: BootState,
-    /// The other image's version ([`Updater::other_image`]), read at boot.
-    pub previous: Option<crate::io::Version>,
-    /// The largest update file the device takes.
-    pub capacity: u32,
-}
-
-impl Status {
-    /// The previous firmware's version as Read Device Identification sends
-    /// it (object 0x80): empty when unknown.
-    pub fn previous_text(&self) -> heapless::String<{ crate::server::identity::MAX_VERSION_LEN }> {
-        let mut text = heapless::String::new();
-        if let Some(previous) = self.previous {
-            // At most 17 bytes (65535.65535.65535): it fits.
-            let _ = previous.write_to(&mut text);
-        }
-        text
-    }
-}
-
-impl BootState {
-    /// The state as `/api/status` names it.
-    pub const fn as_str(self) -> &'static str {
-        match self {
-            Self::Confirmed => "confirmed",
-            Self::Trial => "trial",
-            Self::Armed => "armed",
-            Self::RolledBack => "rolled_back",
-            Self::DfuDetach => "dfu_detach",
-        }
     }
 }
 

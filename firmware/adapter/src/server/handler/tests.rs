@@ -436,7 +436,7 @@ fn diagnostics_clear_counters_is_a_write() {
         outcome,
         Outcome::Reply { write: true, exception: None, written: Written { outputs: false }, .. }
     ));
-    assert_eq!(stats.snapshot(), crate::device::Counters::default());
+    assert_eq!(stats.snapshot(), crate::server::Counters::default());
 }
 
 #[test]

@@ -24,10 +24,11 @@ use test_support::reply::{Answer, Refusals, check_reply};
 
 use super::{Error, serve};
 use crate::device::Device;
+use crate::device::Watchdog;
 use crate::map::WritePolicy;
 use crate::modbus::mbap::MAX_ADU_LEN;
 use crate::server::testing::{Clock, server_with};
-use crate::server::{Config, Outcome, Policy, Server, Watchdog};
+use crate::server::{Config, Outcome, Policy, Server};
 
 fn address() -> impl Strategy<Value = u16> {
     prop_oneof![4 => 0u16..440, 1 => any::<u16>()]

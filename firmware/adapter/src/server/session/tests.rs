@@ -8,8 +8,9 @@ use embedded_io_async::ErrorKind;
 
 use super::{Error, serve};
 use crate::device::Device;
+use crate::device::Watchdog;
 use crate::server::testing::{Clock, server_with};
-use crate::server::{Config, Outcome, Server, Watchdog};
+use crate::server::{Config, Outcome, Server};
 use test_support::duplex::{Wire, poll_once};
 use test_support::fixtures::PYMODBUS;
 use test_support::framer::{self, adu, split_replies};

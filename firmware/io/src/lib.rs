@@ -1,14 +1,28 @@
-//! The hardware seam: what a board (or hal-sim) provides to the shared logic.
+//! The hardware seam: what a board (or hal-sim) provides to the adapter's
+//! portable core, as embassy-net-driver is the network's.
 //!
 //! - [`OutputPins`]: drives outputs as soon as a master's write lands.
-//! - [`InputPins`]: samples inputs; boards also push input edges into the image
-//!   at once through [`crate::device::Device`].
+//! - [`InputPins`]: samples inputs; boards also push input edges into the
+//!   image at once (the adapter's `device::Device::update`).
 //! - [`Robot`]: the robot controller's status, telemetry and version.
 //!
 //! Traits and the values that cross them, nothing else: how they map to
-//! registers is the map's business ([`crate::map::points`]).
+//! registers is the adapter's map (`adapter::map::points`). A robot source
+//! (the simulated robot, a board's own) needs only this crate.
+#![no_std]
 
-use crate::map::table;
+/// The analog type register's values and each type's range (the data map's
+/// analog points).
+pub mod analog {
+    /// The analog type register value for current (µA) mode.
+    pub const CURRENT: u16 = 0;
+    /// The analog type register value for voltage (mV) mode.
+    pub const VOLTAGE: u16 = 1;
+    /// The largest analog value in current mode: 20 mA in µA.
+    pub const MAX_MICROAMPS: u16 = 20_000;
+    /// The largest analog value in voltage mode: 10 V in mV.
+    pub const MAX_MILLIVOLTS: u16 = 10_000;
+}
 
 /// What an analog point measures or drives (its type register).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -24,22 +38,22 @@ pub enum AnalogType {
 impl AnalogType {
     /// The type a type register holds (anything but 1 is current).
     pub const fn from_register(value: u16) -> Self {
-        if value == table::ANALOG_VOLTAGE { Self::Voltage } else { Self::Current }
+        if value == analog::VOLTAGE { Self::Voltage } else { Self::Current }
     }
 
     /// The value a type register holds for this type.
     pub const fn register(self) -> u16 {
         match self {
-            Self::Current => table::ANALOG_CURRENT,
-            Self::Voltage => table::ANALOG_VOLTAGE,
+            Self::Current => analog::CURRENT,
+            Self::Voltage => analog::VOLTAGE,
         }
     }
 
     /// The largest valid value: µA or mV.
     pub const fn max(self) -> u16 {
         match self {
-            Self::Current => table::ANALOG_MAX_MICROAMPS,
-            Self::Voltage => table::ANALOG_MAX_MILLIVOLTS,
+            Self::Current => analog::MAX_MICROAMPS,
+            Self::Voltage => analog::MAX_MILLIVOLTS,
         }
     }
 }
@@ -179,7 +193,7 @@ pub struct Telemetry {
 }
 
 /// The robot data source, sampled by the 100 ms refresh. Event-class changes
-/// (an e-stop, a button) are pushed at once through [`crate::device::Device::update`].
+/// (an e-stop, a button) are pushed at once (the adapter's `device::Device::update`).
 pub trait Robot {
     fn status(&mut self) -> RobotStatus;
     fn telemetry(&mut self) -> Telemetry;
@@ -223,7 +237,7 @@ impl Robot for NoRobot {
 }
 
 /// A version: the robot controller's (registers 256-258, from the
-/// [`Robot`] source), or this firmware's ([`crate::VERSION`]).
+/// [`Robot`] source), or this firmware's (the adapter's `VERSION`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Version {
@@ -236,19 +250,11 @@ impl Version {
     /// No version known: 0.0.0, what registers 256-258 hold without a robot source.
     pub const NONE: Self = Self { major: 0, minor: 0, patch: 0 };
 
+    /// The longest version as text (`65535.65535.65535`).
+    pub const MAX_TEXT_LEN: usize = 17;
+
     /// Registers 256-258 as the map holds them.
     pub const fn registers(&self) -> [u16; 3] {
         [self.major, self.minor, self.patch]
-    }
-
-    /// Writes `major.minor.patch`.
-    pub fn write_to(&self, out: &mut dyn core::fmt::Write) -> core::fmt::Result {
-        for (i, part) in self.registers().into_iter().enumerate() {
-            if i > 0 {
-                out.write_str(".")?;
-            }
-            crate::text::write_decimal(out, part)?;
-        }
-        Ok(())
     }
 }

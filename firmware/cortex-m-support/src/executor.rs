@@ -1,6 +1,6 @@
-//! The boards' executor loop (feature `cortex-m`): embassy's raw executor,
-//! polled until no task is ready, then the core sleeps in `wfi` until an
-//! interrupt comes, and each sleep is reported to [`CPU_LOAD`].
+//! The boards' executor loop: embassy's raw executor, polled until no task
+//! is ready, then the core sleeps in `wfi` until an interrupt comes, and
+//! each sleep is reported to the program (the adapter's `load::CPU_LOAD`).
 //!
 //! It replaces embassy's stock cortex-m thread executor, which cannot
 //! report its sleeps, and which sleeps with `wfe`: QEMU runs `wfe` as a busy
@@ -13,8 +13,6 @@ use embassy_executor::{Spawner, raw};
 use embassy_time::Instant;
 use static_cell::StaticCell;
 
-use crate::load::CPU_LOAD;
-
 /// Set by the executor's pender (from any context); cleared before each poll.
 static WORK: AtomicBool = AtomicBool::new(false);
 
@@ -24,8 +22,10 @@ fn pender(_context: *mut ()) {
     WORK.store(true, Ordering::Release);
 }
 
-/// Runs the executor forever: `init` spawns the first tasks.
-pub fn run(init: impl FnOnce(Spawner)) -> ! {
+/// Runs the executor forever: `init` spawns the first tasks, and `slept`
+/// is told of each sleep, from when the core went to sleep to when it
+/// woke (the interrupt that woke it has run by then).
+pub fn run(init: impl FnOnce(Spawner), slept: impl Fn(Instant, Instant)) -> ! {
     static EXECUTOR: StaticCell<raw::Executor> = StaticCell::new();
     let executor: &'static raw::Executor = EXECUTOR.init(raw::Executor::new(core::ptr::null_mut()));
     init(executor.spawner());
@@ -47,7 +47,7 @@ pub fn run(init: impl FnOnce(Spawner)) -> ! {
         });
         if let Some(from) = asleep {
             // The interrupt that woke the core has run: its time counts as asleep.
-            CPU_LOAD.slept(from, Instant::now());
+            slept(from, Instant::now());
         }
     }
 }
