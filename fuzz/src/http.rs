@@ -1,6 +1,7 @@
 //! The http target: arbitrary bytes as one HTTP connection to
-//! `adapter::http::serve`, over test-support's duplex, with a backend that
-//! keeps its settings and password in memory.
+//! `adapter::http::serve`, over test-support's duplex, with the settings
+//! service over a real store on a rule-keeping flash (that wears out when
+//! the input says so).
 //!
 //! Checks, on every input:
 //! - no panic, and the connection ends within the request and response
@@ -19,12 +20,16 @@ use core::pin::pin;
 use core::task::Poll;
 use std::cell::{Cell, RefCell};
 
-use adapter::device::Device;
-use adapter::http::{self, Action, Backend, Buffers, FirmwareRefusal, Http, NetworkStatus, Refusal};
+use adapter::control::{Controller, NetworkStatus, Platform};
+use adapter::device::{Device, Watchdog};
+use adapter::http::{self, Action, Buffers, Http};
 use adapter::io::Version;
-use adapter::device::Watchdog;
 use adapter::server::Server;
 use adapter::settings::{Field, Kind, NetMode, Settings};
+use adapter::storage::Store;
+use adapter::storage::flash::{RuleFlash, Wearing};
+use adapter::update::boot::{Refused, Source};
+use embassy_futures::block_on;
 use embassy_time::{Duration, MockDriver};
 use test_support::duplex::poll_once;
 
@@ -38,64 +43,22 @@ use crate::input::{
 const INSIDE: [u8; 4] = [10, 0, 0, 2];
 const OUTSIDE: [u8; 4] = [10, 0, 1, 2];
 
-/// A backend over a real server and device, in memory.
-struct FuzzBackend<'a> {
-    server: &'a Server<'a, Device<'a>>,
-    settings: Cell<Settings>,
-    password: RefCell<Option<Vec<u8>>>,
-    save_fails: Cell<bool>,
-    applied: Cell<u32>,
+/// The settings flash: two pages.
+const PAGE: usize = 4096;
+
+/// A platform that records what it is asked.
+#[derive(Default)]
+struct FuzzPlatform {
     located: Cell<bool>,
+    reboots: Cell<u32>,
     /// The update files received whole, each as it arrived.
     firmware: RefCell<Vec<Vec<u8>>>,
 }
 
-/// The largest update file the backend takes: small, so inputs reach it.
+/// The largest update file the platform takes: small, so inputs reach it.
 const FIRMWARE_CAPACITY: usize = 2500;
 
-impl Backend for FuzzBackend<'_> {
-    fn server(&self) -> &Server<'_, Device<'_>> {
-        self.server
-    }
-
-    fn settings(&self) -> Settings {
-        self.settings.get()
-    }
-
-    async fn apply(&self, settings: &Settings) -> Result<bool, Refusal> {
-        if self.save_fails.get() {
-            return Err(Refusal::Storage);
-        }
-        let old = self.settings.replace(*settings);
-        self.server.set_config(settings.server_config(MAC));
-        self.applied.set(self.applied.get() + 1);
-        Ok(old.reboot_required(settings))
-    }
-
-    fn password_set(&self) -> bool {
-        self.password.borrow().is_some()
-    }
-
-    async fn verify_password(&self, password: &[u8]) -> bool {
-        self.password.borrow().as_deref() == Some(password)
-    }
-
-    async fn set_password(&self, password: &[u8]) -> Result<(), Refusal> {
-        if self.save_fails.get() {
-            return Err(Refusal::Storage);
-        }
-        *self.password.borrow_mut() = Some(password.to_vec());
-        Ok(())
-    }
-
-    fn reboot(&self) {}
-
-    async fn factory_reset(&self) {}
-
-    fn locate(&self, _duration: Duration) {
-        self.located.set(true);
-    }
-
+impl Platform for FuzzPlatform {
     fn model(&self) -> &'static str {
         "fuzz"
     }
@@ -108,25 +71,38 @@ impl Backend for FuzzBackend<'_> {
         NetworkStatus { mode: NetMode::Static, address: None, gateway: None, link: true }
     }
 
+    fn reboot(&self) {
+        self.reboots.set(self.reboots.get() + 1);
+    }
+
+    fn locate(&self, _duration: Duration) {
+        self.located.set(true);
+    }
+
+    fn salt(&self) -> [u8; 16] {
+        [7; 16]
+    }
+
     fn firmware_capacity(&self) -> usize {
         FIRMWARE_CAPACITY
     }
 
     /// Takes a file whose first byte is not 0 (a stand-in for the real check).
-    async fn receive_firmware<R: embedded_io_async::Read>(
-        &self,
-        body: &mut http::request::Stream<'_, R>,
-    ) -> Result<Version, FirmwareRefusal> {
+    async fn receive_firmware<S: Source>(&self, body: &mut S) -> Result<Version, Refused<S::Error>> {
         let mut file = Vec::new();
         let mut last = false;
-        while let Some(chunk) = body.chunk().await.map_err(FirmwareRefusal::Body)? {
+        while let Some(chunk) = body.chunk().await.map_err(Refused::Source)? {
             assert!(!last, "whole chunks but the last");
             last = chunk.len() < http::request::CHUNK_LEN;
             file.extend_from_slice(chunk);
         }
         let taken = file.first().is_some_and(|&first| first != 0);
         self.firmware.borrow_mut().push(file);
-        if taken { Ok(Version { major: 1, minor: 2, patch: 3 }) } else { Err(FirmwareRefusal::Invalid("no")) }
+        if taken {
+            Ok(Version { major: 1, minor: 2, patch: 3 })
+        } else {
+            Err(Refused::Update(adapter::update::Error::TooLong))
+        }
     }
 }
 
@@ -193,7 +169,7 @@ const BOUND: Duration = Duration::from_secs(
         + http::AUTH_FAILURE_DELAY.as_secs(),
 );
 
-/// The backend's MAC.
+/// The platform's MAC.
 const MAC: [u8; 6] = [0x02, 0, 0, 0, 0, 1];
 
 /// Serves `data` (see [`HttpInput`]) as one connection and checks it.
@@ -205,17 +181,19 @@ pub fn http(data: &[u8]) {
     let device = Device::new(Watchdog::OFF, "fuzz", &pins);
     let settings = initial_settings();
     let server = Server::new(settings.server_config(MAC), &device);
-    let password = flag(HTTP_PASSWORD_SET).then(|| PASSWORD.as_bytes().to_vec());
-    let backend = FuzzBackend {
-        server: &server,
-        settings: Cell::new(settings),
-        password: RefCell::new(password.clone()),
-        save_fails: Cell::new(flag(HTTP_SAVE_FAILS)),
-        applied: Cell::new(0),
-        located: Cell::new(false),
-        firmware: RefCell::new(Vec::new()),
-    };
-    let api = Http::new(&backend);
+    let password = flag(HTTP_PASSWORD_SET).then_some(PASSWORD);
+    let mut memory = vec![0xff; 2 * PAGE];
+    let worn = Cell::new(false);
+    let mut store = Store::new(Wearing::new(RuleFlash::<4, PAGE>::new(&mut memory[..]), &worn), 0..2 * PAGE as u32)
+        .expect("two whole pages");
+    let loaded = block_on(store.load(&settings));
+    let control = Controller::new(&server, FuzzPlatform::default(), store, &loaded);
+    if let Some(password) = password {
+        assert_eq!(block_on(control.set_password(password.as_bytes())), Ok(()));
+    }
+    let saved_before = control.storage().records;
+    worn.set(flag(HTTP_SAVE_FAILS));
+    let api = Http::new(&control, http::HTTP_PORT);
 
     let (wire, end) =
         crate::connection::shaped(input.stream, input.cuts, flag(HTTP_STALL_READS), flag(HTTP_PARTIAL_WRITES));
@@ -261,10 +239,17 @@ pub fn http(data: &[u8]) {
     let without_nul: Vec<u8> = input.stream.iter().copied().filter(|&b| b != 0).collect();
     let may_change = !flag(HTTP_OUTSIDE) && (password.is_none() || contains(&without_nul, credentials().as_bytes()));
 
+    // The password: changed when its set state did, or the one set no longer verifies.
+    let password_changed = control.password_set() != password.is_some()
+        || password.is_some_and(|password| !block_on(control.verify_password(password.as_bytes())));
     // Settings: only through an accepted PUT, and as the response shows them.
-    let now = backend.settings.get();
+    let now = control.settings();
     let changed = now != settings;
-    assert_eq!(backend.applied.get(), u32::from(changed), "saved exactly when changed");
+    // One record for a settings change, one for a password set (the same
+    // one again included), nothing else.
+    let password_put = asked("PUT", "/api/password") && status == Some(200);
+    let saved = control.storage().records - saved_before;
+    assert_eq!(saved, u32::from(changed) + u32::from(password_put), "saved exactly when changed");
     if changed {
         assert!(asked("PUT", "/api/settings") && status == Some(200), "a change without an accepted PUT");
         assert!(may_change, "a change from outside allow_write or without the password");
@@ -286,13 +271,14 @@ pub fn http(data: &[u8]) {
         assert!(!changed, "a refused change changed something");
     }
     // The password, the actions, the blink: each only through its endpoint.
-    if *backend.password.borrow() != password {
+    if password_changed {
         assert!(asked("PUT", "/api/password") && status == Some(200), "the password changed");
         assert!(may_change, "the password changed from outside or without the current one");
     }
     // An update file: only through its endpoint, whole, from those who may
     // change the device; taken (and a reboot asked) exactly when accepted.
-    let files = backend.firmware.borrow();
+    let platform = control.platform();
+    let files = platform.firmware.borrow();
     assert!(files.len() <= 1, "one request, one file");
     let uploaded = asked("POST", "/api/firmware");
     if let Some(file) = files.first() {
@@ -320,7 +306,8 @@ pub fn http(data: &[u8]) {
         }
         Ok(None) | Err(_) => {}
     }
-    if backend.located.get() {
+    assert_eq!(platform.reboots.get(), 0, "a reboot is the caller's, after the connection closed");
+    if platform.located.get() {
         assert!(asked("POST", "/api/locate") && status == Some(200));
         assert!(may_change);
     }

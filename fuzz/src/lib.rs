@@ -24,11 +24,9 @@ pub mod storage;
 use core::pin::pin;
 use core::task::Poll;
 
-use adapter::device::Device;
+use adapter::device::{Device, Watchdog};
 use adapter::map::Image;
-use adapter::server::{
-    self, Config, Context, Counters, Error, Identity, Outcome, Policy, Server, Stats, Watchdog, handler,
-};
+use adapter::server::{self, Config, Context, Counters, Error, Identity, Outcome, Policy, Server, Stats, handler};
 use modbus::mbap::{self, MAX_ADU_LEN};
 use modbus::{Exception, Request, Response};
 use test_support::duplex::poll_once;
@@ -101,7 +99,8 @@ pub fn session(data: &[u8]) {
     let model = Server::new(config(policy), &model_device);
     let scratch = Stats::new();
     let name = config(policy).name;
-    let context = Context { identity: Identity { model: MODEL, name: &name, previous_firmware: None }, stats: &scratch };
+    let context =
+        Context { identity: Identity { model: MODEL, name: &name, previous_firmware: None }, stats: &scratch };
     let mut expected = [0u8; MAX_ADU_LEN];
     for (request, reply) in requests.iter().zip(&replies) {
         let answer = check::reply(request, reply, &policy);

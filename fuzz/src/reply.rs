@@ -39,8 +39,12 @@ pub fn reply(data: &[u8]) {
     let Some((head, bytes)) = data.split_at_checked(HEADER_LEN) else { return };
     let &[t0, t1, unit_id, s0, s1, q] = head else { return };
     let quantity = u16::from(q) % 125 + 1;
-    let request =
-        ReadHoldingRegisters { transaction_id: u16::from_be_bytes([t0, t1]), unit_id, start: u16::from_be_bytes([s0, s1]), quantity };
+    let request = ReadHoldingRegisters {
+        transaction_id: u16::from_be_bytes([t0, t1]),
+        unit_id,
+        start: u16::from_be_bytes([s0, s1]),
+        quantity,
+    };
     let count = 2 * usize::from(quantity);
     let accepted = bytes.len() == 9 + count
         && bytes[..2] == [t0, t1]

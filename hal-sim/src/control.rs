@@ -12,7 +12,6 @@ use std::io::{Read as _, Write as _};
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::Path;
 
-use adapter::http::Backend as _;
 use adapter::io::{ANALOG_CHANNELS, RobotState, RobotStatus};
 use adapter::map::table::{DIGITAL_PINS, TOOL_PINS};
 use embassy_executor::Spawner;

@@ -37,7 +37,7 @@ use crate::tap::TunTapDevice;
 /// The Modbus server over the simulated device.
 type ModbusServer = Server<'static, Device<'static>>;
 /// The HTTP API over hal-sim's backend.
-type Api = Http<'static, SimController>;
+type Api = Http<'static, crate::state::Flash, SimPlatform>;
 
 /// Sockets in the stack: the Modbus listeners, DHCP's, the HTTP listeners, mDNS's and the robot link's.
 const NET_SOCKETS: usize = adapter::program::STACK_SOCKETS;
@@ -145,9 +145,10 @@ fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>, fl
     let server: &'static ModbusServer = Box::leak(Box::new(Server::new(settings.server_config(MAC), device)));
     let board: &'static Board = Box::leak(Box::new(Board::new(device, outputs, SimRobot::new(options.robot))));
     // No API (`--http-port 0`): no port for `modbus.port` to avoid (0 is never a Modbus port).
-    let platform = SimPlatform::new(stack, settings.network.mode, options.http_port.unwrap_or(0));
-    let controller: &'static SimController = Box::leak(Box::new(SimController::new(server, platform, store, &loaded)));
-    let api: &'static Api = Box::leak(Box::new(Http::new(controller)));
+    let platform = SimPlatform::new(stack, settings.network.mode);
+    let controller = SimController::new(server, platform, store, &loaded).with_robot_link(&ROBOT_LINK);
+    let controller: &'static SimController = Box::leak(Box::new(controller));
+    let api: &'static Api = Box::leak(Box::new(Http::new(controller, options.http_port.unwrap_or(0))));
     let options: &'static Options = Box::leak(Box::new(options));
     let sim = Sim { stack, board, server, controller, api, settings, options };
 
@@ -171,7 +172,7 @@ fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>, fl
 }
 
 /// The settings hal-sim runs with: the loaded ones, except a saved Modbus
-/// port that is the HTTP port (the API does not know hal-sim's HTTP port):
+/// port that is the HTTP port (saved while the API listened on another):
 /// then the command line's, so that the API stays reachable to mend it.
 fn running_settings(loaded: &Settings, options: &Options) -> Settings {
     let mut settings = *loaded;
@@ -214,9 +215,9 @@ fn start(
     for slot in 0..SOCKET_POOL {
         spawner.spawn(modbus_task(stack, server, slot)?);
     }
-    if let Some(port) = options.http_port {
+    if options.http_port.is_some() {
         for _ in 0..MAX_HTTP_CONNECTIONS {
-            spawner.spawn(http_task(stack, api, port)?);
+            spawner.spawn(http_task(stack, api)?);
         }
     }
     if let Some(listener) = control {
@@ -247,8 +248,8 @@ async fn modbus_task(stack: Stack<'static>, server: &'static ModbusServer, slot:
 
 /// One HTTP listener per connection served at once.
 #[embassy_executor::task(pool_size = MAX_HTTP_CONNECTIONS)]
-async fn http_task(stack: Stack<'static>, api: &'static Api, port: u16) -> ! {
-    http::listen(stack, api, port).await
+async fn http_task(stack: Stack<'static>, api: &'static Api) -> ! {
+    http::listen(stack, api).await
 }
 
 /// Answers mDNS queries for the name in force and the services (DEVICE.md section 3).

@@ -1,4 +1,4 @@
-//! hal-sim as the HTTP API's [`Platform`]: what only the board knows (its
+//! hal-sim as the settings service's [`Platform`]: what only the board knows (its
 //! model, its MAC, the network as the stack has it) and what only it can do
 //! (draw a salt, blink, reboot).
 //!
@@ -15,7 +15,7 @@ use std::ffi::{CString, OsString};
 use std::io::Read as _;
 use std::os::unix::ffi::OsStrExt as _;
 
-use adapter::http::{Controller, NetworkStatus, Platform, RobotSource};
+use adapter::control::{Controller, NetworkStatus, Platform, RobotSource};
 use adapter::settings::NetMode;
 use embassy_net::Stack;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
@@ -24,7 +24,7 @@ use embassy_time::{Duration, Instant, Timer};
 
 use crate::state::Flash;
 
-/// The API's backend in hal-sim: the settings store over the state file.
+/// The settings service in hal-sim: the settings store over the state file.
 pub type SimController = Controller<'static, Flash, SimPlatform>;
 
 /// How long a reboot waits for the frames already queued (the response's
@@ -39,8 +39,6 @@ pub struct SimPlatform {
     stack: Stack<'static>,
     /// The network mode the device started with.
     mode: NetMode,
-    /// The API's port (`--http-port`).
-    http_port: u16,
     /// Until when the (simulated) status LED blinks.
     locate_until: Cell<Option<Instant>>,
 }
@@ -52,8 +50,8 @@ impl std::fmt::Debug for SimPlatform {
 }
 
 impl SimPlatform {
-    pub fn new(stack: Stack<'static>, mode: NetMode, http_port: u16) -> Self {
-        Self { stack, mode, http_port, locate_until: Cell::new(None) }
+    pub fn new(stack: Stack<'static>, mode: NetMode) -> Self {
+        Self { stack, mode, locate_until: Cell::new(None) }
     }
 
     /// Whether the status LED blinks now (`POST /api/locate`, for 10 s).
@@ -73,10 +71,6 @@ impl Platform for SimPlatform {
 
     fn network(&self) -> NetworkStatus {
         NetworkStatus::of(self.stack, self.mode)
-    }
-
-    fn http_port(&self) -> u16 {
-        self.http_port
     }
 
     fn reboot(&self) {
@@ -108,10 +102,6 @@ impl Platform for SimPlatform {
 
     fn local_robot(&self) -> RobotSource {
         RobotSource::Sim
-    }
-
-    fn link(&self) -> Option<&adapter::link::Link> {
-        Some(&crate::ROBOT_LINK)
     }
 }
 

@@ -9,7 +9,9 @@
 //! - [`settings`]: the one settings model, and [`net`]: the boards' network policy.
 //! - [`storage`]: the settings and the admin password saved on the device,
 //!   power-fail safe, over any `embedded-storage-async` NOR flash.
-//! - `http` (feature `http`): the HTTP JSON API over the settings, the server and the device.
+//! - [`control`]: the settings service: the store, the password, apply,
+//!   factory reset, over a small board seam; every front end calls it.
+//! - `http` (feature `http`): the HTTP JSON API, a front end of the settings service.
 //! - `link` (feature `robot-link`): the robot link, a client of the robot controller's own Modbus TCP server.
 //! - `mdns` (feature `mdns`): the mDNS responder: `NAME.local` and the device's services.
 //! - `update` (feature `update`): firmware update: a signed image streamed into
@@ -24,6 +26,7 @@ pub mod fmt;
 
 pub mod access;
 pub mod analog;
+pub mod control;
 pub mod device;
 #[cfg(feature = "http")]
 pub mod http;

@@ -19,7 +19,7 @@ use adapter::server::{self, SOCKET_POOL, Server, SlotId};
 use adapter::settings::Name;
 use adapter::settings::{Cidr, NetMode, NetworkSettings, Settings};
 #[cfg(feature = "http")]
-use adapter::{http::Controller, storage::Store};
+use adapter::{control::Controller, storage::Store};
 use defmt_semihosting as _;
 use embassy_executor::Spawner;
 use embassy_net::{Runner, Stack, StackResources};
@@ -65,12 +65,12 @@ const _: () = assert!(SETTINGS.modbus.port != adapter::http::HTTP_PORT, "MODBUS_
 /// The Modbus server over the device.
 type ModbusServer = Server<'static, Device<'static>>;
 
-/// The settings, the store and the password over this board.
+/// The settings service: the settings, the store and the password over this board.
 #[cfg(feature = "http")]
-type Backend = Controller<'static, platform::SettingsFlash, platform::Mps2>;
-/// The HTTP API over them.
+type Control = Controller<'static, platform::SettingsFlash, platform::Mps2>;
+/// The HTTP API over it.
 #[cfg(feature = "http")]
-type Api = adapter::http::Http<'static, Backend>;
+type Api = adapter::http::Http<'static, platform::SettingsFlash, platform::Mps2>;
 
 static LEDS: Leds = Leds;
 
@@ -131,10 +131,13 @@ fn main() -> ! {
     #[cfg(feature = "http")]
     let (api, names): (&'static Api, &'static dyn DeviceName) = {
         let platform = platform::Mps2::new(stack, mac, settings.network.mode);
-        static CONTROLLER: StaticCell<Backend> = StaticCell::new();
-        let controller: &'static Backend = CONTROLLER.init(Controller::new(server, platform, store, &loaded));
+        let control = Controller::new(server, platform, store, &loaded);
+        #[cfg(feature = "robot-link")]
+        let control = control.with_robot_link(&ROBOT_LINK);
+        static CONTROL: StaticCell<Control> = StaticCell::new();
+        let control: &'static Control = CONTROL.init(control);
         static API: StaticCell<Api> = StaticCell::new();
-        (API.init(adapter::http::Http::new(controller)), controller)
+        (API.init(adapter::http::Http::new(control, adapter::http::HTTP_PORT)), control)
     };
     // Without the settings store the name never changes.
     #[cfg(not(feature = "http"))]
@@ -293,7 +296,7 @@ async fn modbus_task(stack: Stack<'static>, server: &'static ModbusServer, slot:
 #[cfg(feature = "http")]
 #[embassy_executor::task(pool_size = adapter::http::MAX_HTTP_CONNECTIONS)]
 async fn http_task(stack: Stack<'static>, api: &'static Api) -> ! {
-    adapter::http::listen(stack, api, adapter::http::HTTP_PORT).await
+    adapter::http::listen(stack, api).await
 }
 
 /// Blinks LED1 for `POST /api/locate`.

@@ -1,6 +1,6 @@
 //! Settings on the device and the HTTP API's board side (feature `http`):
 //! the settings store over the PSRAM region ([`settings_flash`]) and the
-//! [`Platform`] the API's [`Controller`](adapter::http::Controller) runs on.
+//! [`Platform`] the settings service ([`Controller`](adapter::control::Controller)) runs on.
 //!
 //! | what | how, on this board |
 //! |---|---|
@@ -14,7 +14,7 @@
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
-use adapter::http::{NetworkStatus, Platform};
+use adapter::control::{NetworkStatus, Platform};
 use adapter::settings::NetMode;
 use adapter::storage::flash::RuleFlash;
 use embassy_futures::select::{Either, select};
@@ -132,22 +132,17 @@ impl Platform for Mps2 {
         salt
     }
 
-    #[cfg(feature = "robot-link")]
-    fn link(&self) -> Option<&adapter::link::Link> {
-        Some(&crate::ROBOT_LINK)
-    }
-
     #[cfg(feature = "update")]
     fn firmware_capacity(&self) -> usize {
         crate::update::UPDATE.capacity()
     }
 
     #[cfg(feature = "update")]
-    async fn receive_firmware<R: embedded_io_async::Read>(
+    async fn receive_firmware<S: adapter::update::boot::Source>(
         &self,
-        body: &mut adapter::http::request::Stream<'_, R>,
-    ) -> Result<adapter::io::Version, adapter::http::FirmwareRefusal> {
-        adapter::http::receive_update(&crate::update::UPDATE, body).await
+        body: &mut S,
+    ) -> Result<adapter::io::Version, adapter::update::boot::Refused<S::Error>> {
+        crate::update::UPDATE.receive(body).await
     }
 }
 

@@ -1,7 +1,7 @@
 //! Settings on the device and the HTTP API's board side (feature `http`,
 //! on by default): the settings store over bank 2's sectors 12-13
-//! ([`flash::SettingsFlash`]) and the [`Platform`] the API's
-//! [`Controller`] runs on.
+//! ([`flash::SettingsFlash`]) and the [`Platform`] the settings service
+//! ([`Controller`]) runs on, which the HTTP API calls.
 //!
 //! | what | how, on this board |
 //! |---|---|
@@ -16,8 +16,9 @@
 
 use core::cell::RefCell;
 
+use adapter::control::{Controller, NetworkStatus, Platform};
 use adapter::device::Device;
-use adapter::http::{Controller, Http, NetworkStatus, Platform};
+use adapter::http::{HTTP_PORT, Http};
 use adapter::server::Server;
 use adapter::settings::{NetMode, Settings};
 use adapter::storage::{Loaded, Store};
@@ -33,10 +34,10 @@ use static_cell::StaticCell;
 use crate::safety::ResetCause;
 use crate::{SETTINGS, flash, leds};
 
-/// The API's backend on this board.
-pub type Backend = Controller<'static, flash::SettingsFlash, Nucleo>;
+/// The settings service on this board.
+pub type Control = Controller<'static, flash::SettingsFlash, Nucleo>;
 /// The HTTP API over it.
-pub type Api = Http<'static, Backend>;
+pub type Api = Http<'static, flash::SettingsFlash, Nucleo>;
 
 /// The settings store over the settings flash, and what it holds, erased
 /// first when `factory_reset` (the user button held at power-up). A load
@@ -68,10 +69,12 @@ pub fn api(
     store: Store<flash::SettingsFlash>,
     loaded: &Loaded,
 ) -> &'static Api {
-    static BACKEND: StaticCell<Backend> = StaticCell::new();
+    static CONTROL: StaticCell<Control> = StaticCell::new();
     static API: StaticCell<Api> = StaticCell::new();
-    let backend = BACKEND.init(Controller::new(server, platform, store, loaded));
-    API.init(Http::new(backend))
+    let control = Controller::new(server, platform, store, loaded);
+    #[cfg(feature = "robot-link")]
+    let control = control.with_robot_link(&crate::ROBOT_LINK);
+    API.init(Http::new(CONTROL.init(control), HTTP_PORT))
 }
 
 /// What only this board knows or does, for the HTTP API.
@@ -139,21 +142,16 @@ impl Platform for Nucleo {
         salt
     }
 
-    #[cfg(feature = "robot-link")]
-    fn link(&self) -> Option<&adapter::link::Link> {
-        Some(&crate::ROBOT_LINK)
-    }
-
     #[cfg(feature = "update")]
     fn firmware_capacity(&self) -> usize {
         crate::update::UPDATE.capacity()
     }
 
     #[cfg(feature = "update")]
-    async fn receive_firmware<R: embedded_io_async::Read>(
+    async fn receive_firmware<S: adapter::update::boot::Source>(
         &self,
-        body: &mut adapter::http::request::Stream<'_, R>,
-    ) -> Result<adapter::io::Version, adapter::http::FirmwareRefusal> {
-        adapter::http::receive_update(&crate::update::UPDATE, body).await
+        body: &mut S,
+    ) -> Result<adapter::io::Version, adapter::update::boot::Refused<S::Error>> {
+        crate::update::UPDATE.receive(body).await
     }
 }

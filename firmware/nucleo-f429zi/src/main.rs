@@ -120,7 +120,7 @@ async fn start(spawner: Spawner) {
     // The name in force: the settings' (the API may change it), or without
     // the store the factory name, fixed.
     #[cfg(feature = "http")]
-    let names: &'static dyn DeviceName = api.backend();
+    let names: &'static dyn DeviceName = api.control();
     #[cfg(not(feature = "http"))]
     let names: &'static dyn DeviceName = {
         static NAME: StaticCell<Name> = StaticCell::new();
@@ -205,7 +205,7 @@ async fn modbus_task(stack: Stack<'static>, server: &'static ModbusServer, slot:
 #[cfg(feature = "http")]
 #[embassy_executor::task(pool_size = adapter::http::MAX_HTTP_CONNECTIONS)]
 async fn http_task(stack: Stack<'static>, api: &'static http::Api) -> ! {
-    adapter::http::listen(stack, api, adapter::http::HTTP_PORT).await
+    adapter::http::listen(stack, api).await
 }
 
 /// Confirms this image once it serves, when it runs on trial after a swap.

@@ -1,15 +1,17 @@
-//! The endpoints (DEVICE.md section 2): routing, who may change things, and
-//! the JSON documents each one reads and writes.
+//! The endpoints (docs/http-api.md): routing, who may change things, and
+//! the JSON documents each one reads and writes, each change a call of the
+//! settings service ([`crate::control::Controller`]).
 
 use embassy_time::{Instant, Timer};
+use embedded_storage_async::nor_flash::NorFlash;
 
 use super::auth::{self, Credentials, MAX_CREDENTIALS_LEN};
-use super::backend::{Backend, Refusal, RobotSource};
 use super::json::{Malformed, Out, Reader, Str, Value};
 use super::page;
 use super::request::{Incoming, Request};
 use super::response::{Response, Status};
 use super::{AUTH_FAILURE_DELAY, Action, Http, LOCATE_DURATION, MAX_PASSWORD_LEN, MIN_PASSWORD_LEN, REALM_HEADER};
+use crate::control::{Controller, Platform, Refusal, RobotSource};
 use crate::io::AnalogType;
 use crate::map::Image;
 use crate::map::table::reg;
@@ -119,15 +121,15 @@ fn refusal(out: &mut Out<'_>, status: Status, key: &str, message: &str) -> Reply
 }
 
 /// One request's view of the API: who is asking.
-pub(super) struct Api<'h, 'b, B: Backend> {
-    pub(super) http: &'h Http<'b, B>,
+pub(super) struct Api<'h, 'b, F: NorFlash, P: Platform> {
+    pub(super) http: &'h Http<'b, F, P>,
     /// The client's IPv4 address (`None`: not IPv4, never allowed to change things).
     pub(super) peer: Option<[u8; 4]>,
 }
 
-impl<B: Backend> Api<'_, '_, B> {
-    fn backend(&self) -> &B {
-        self.http.backend
+impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
+    fn control(&self) -> &'b Controller<'b, F, P> {
+        self.http.control
     }
 
     /// Takes the rest of `incoming` from `reader` by `deadline` and answers
@@ -151,7 +153,7 @@ impl<B: Backend> Api<'_, '_, B> {
         Ok((reply, action))
     }
 
-    /// `POST /api/firmware`: the body streamed to the backend, which checks
+    /// `POST /api/firmware`: the body streamed to the updater, which checks
     /// it whole before it arms anything; then a reboot into it.
     #[cfg(feature = "update")]
     async fn upload<R: embedded_io_async::Read>(
@@ -160,10 +162,10 @@ impl<B: Backend> Api<'_, '_, B> {
         reader: &mut R,
         out: &mut Out<'_>,
     ) -> Result<(Reply, Option<Action>), super::Error> {
-        use super::backend::FirmwareRefusal;
-        let capacity = self.backend().firmware_capacity();
+        use crate::update::boot::Refused;
+        let capacity = self.control().platform().firmware_capacity();
         if capacity == 0 {
-            return Ok((refusal(out, Status::NOT_IMPLEMENTED, "firmware", "this device takes no updates"), None));
+            return Ok((no_updates(out), None));
         }
         if incoming.content_length > capacity as u64 {
             out.text("{\"errors\":{\"firmware\":\"over ");
@@ -176,21 +178,25 @@ impl<B: Backend> Api<'_, '_, B> {
         }
         let _change = self.http.changes.lock().await;
         let mut body = incoming.stream(reader, Instant::now() + super::UPLOAD_TIMEOUT);
-        let reply = match self.backend().receive_firmware(&mut body).await {
+        let reply = match self.control().receive_firmware(&mut body).await {
             Ok(version) => {
                 out.text("{\"firmware\":{\"version\":");
                 out.string_with(|w| text::write_version(w, version));
                 out.text(",\"rebooting\":true}}");
                 return Ok((Reply::new(Status::ACCEPTED), Some(Action::Reboot)));
             }
-            Err(FirmwareRefusal::Body(error)) => return Err(error),
-            Err(FirmwareRefusal::Invalid(message)) => refusal(out, Status::BAD_REQUEST, "firmware", message),
-            Err(FirmwareRefusal::Storage) => {
-                refusal(out, Status::INTERNAL_SERVER_ERROR, "firmware", "the update partition failed; nothing changed")
-            }
-            Err(FirmwareRefusal::Unsupported) => {
-                refusal(out, Status::NOT_IMPLEMENTED, "firmware", "this device takes no updates")
-            }
+            Err(Refused::Source(error)) => return Err(error),
+            Err(Refused::Update(error)) => match super::update_refusal(error) {
+                super::FirmwareRefusal::Invalid(message) => refusal(out, Status::BAD_REQUEST, "firmware", message),
+                super::FirmwareRefusal::Storage => refusal(
+                    out,
+                    Status::INTERNAL_SERVER_ERROR,
+                    "firmware",
+                    "the update partition failed; nothing changed",
+                ),
+                super::FirmwareRefusal::Unsupported => no_updates(out),
+            },
+            Err(Refused::Unsupported) => no_updates(out),
         };
         Ok((reply, None))
     }
@@ -224,7 +230,7 @@ impl<B: Backend> Api<'_, '_, B> {
                 return Reply::new(Status::OK);
             }
             Endpoint::GetSettings => {
-                settings_document(out, &self.backend().settings(), self.backend().password_set(), None);
+                settings_document(out, &self.control().settings(), self.control().password_set(), None);
                 return Reply::new(Status::OK);
             }
             _ => {}
@@ -246,7 +252,7 @@ impl<B: Backend> Api<'_, '_, B> {
                 Reply::new(Status::ACCEPTED)
             }
             Endpoint::Locate => {
-                self.backend().locate(LOCATE_DURATION);
+                self.control().locate(LOCATE_DURATION);
                 out.text("{\"locating_s\":");
                 out.number(LOCATE_DURATION.as_secs());
                 out.text("}");
@@ -263,19 +269,19 @@ impl<B: Backend> Api<'_, '_, B> {
     /// Every change comes from an address `modbus.allow_write` admits (403),
     /// with the admin password once one is set (401).
     async fn authorize(&self, request: &Request<'_>, out: &mut Out<'_>) -> Result<(), Reply> {
-        let backend = self.backend();
-        let may_write = self.peer.is_some_and(|peer| backend.server().with_config(|c| c.access.may_write(peer)));
+        let control = self.control();
+        let may_write = self.peer.is_some_and(|peer| control.server().with_config(|c| c.access.may_write(peer)));
         if !may_write {
             let message = "this address may not change the device (modbus.allow_write)";
             return Err(refusal(out, Status::FORBIDDEN, "request", message));
         }
-        if !backend.password_set() {
+        if !control.password_set() {
             return Ok(());
         }
         let mut buf = [0u8; MAX_CREDENTIALS_LEN];
         let header = request.authorization;
         let verdict = match auth::credentials(header, &mut buf) {
-            Credentials::Admin(password) => backend.verify_password(password).await,
+            Credentials::Admin(password) => control.verify_password(password).await,
             Credentials::Missing => false,
             Credentials::Invalid => false,
         };
@@ -295,8 +301,8 @@ impl<B: Backend> Api<'_, '_, B> {
     /// `PUT /api/settings`: any subset, grouped; all or nothing.
     async fn put_settings(&self, body: &[u8], out: &mut Out<'_>) -> Reply {
         let _change = self.http.changes.lock().await;
-        let backend = self.backend();
-        let old = backend.settings();
+        let control = self.control();
+        let old = control.settings();
         let mut new = old;
         let mut report = Report::new(out);
         if let Err(malformed) = patch(body, &mut new, &mut report) {
@@ -309,7 +315,7 @@ impl<B: Backend> Api<'_, '_, B> {
                 report.add(Key::Field(field), rule);
             }
         }
-        if report.is_empty() && new.modbus.port == backend.http_port() {
+        if report.is_empty() && new.modbus.port == self.http.port {
             // The settings alone cannot know it: the program's rule.
             report.add(Key::Field(Field::ModbusPort), "must not be the HTTP port");
         }
@@ -320,12 +326,12 @@ impl<B: Backend> Api<'_, '_, B> {
         let reboot_required = if new == old {
             false
         } else {
-            match backend.apply(&new).await {
+            match control.apply(&new).await {
                 Ok(reboot_required) => reboot_required,
                 Err(refused) => return refused_change(out, refused, "the settings were not saved; nothing changed"),
             }
         };
-        settings_document(out, &backend.settings(), backend.password_set(), Some(reboot_required));
+        settings_document(out, &control.settings(), control.password_set(), Some(reboot_required));
         Reply::new(Status::OK)
     }
 
@@ -352,7 +358,7 @@ impl<B: Backend> Api<'_, '_, B> {
             return Reply::new(Status::BAD_REQUEST);
         }
         let password = password.get(..len.unwrap_or(0)).unwrap_or_default();
-        if let Err(refused) = self.backend().set_password(password).await {
+        if let Err(refused) = self.control().set_password(password).await {
             return refused_change(out, refused, "the password was not saved; nothing changed");
         }
         out.text("{\"admin\":{\"password_set\":true}}");
@@ -361,33 +367,35 @@ impl<B: Backend> Api<'_, '_, B> {
 
     /// `GET /api/status`.
     fn status(&self, out: &mut Out<'_>) {
-        let backend = self.backend();
-        let server = backend.server();
+        let control = self.control();
+        let platform = control.platform();
+        let server = control.server();
         let device = server.service();
         let now = Instant::now();
-        let settings = backend.settings();
-        let mac = backend.mac();
+        let settings = control.settings();
+        let mac = platform.mac();
         let io = device.read(Io::of);
         let sessions = server.slots().sessions();
         let counters = server.stats().snapshot();
         let watchdog = device.watchdog();
         let tripped = device.watchdog_tripped();
-        let network = backend.network();
+        let network = platform.network();
 
         out.text("{\"device\":{\"name\":");
         out.string(settings.device.name.or_default(mac).as_str());
         out.text(",\"model\":");
-        out.string(backend.model());
+        out.string(platform.model());
         out.text(",\"firmware\":");
         out.string_with(|w| text::write_version(w, crate::VERSION));
         out.text(",\"uptime_s\":");
         out.number(now.as_secs());
         out.text(",\"cpu_load_percent\":");
-        optional(out, backend.cpu_load_percent(), |out, load| out.number(load));
+        // What the program's executor loop reported (none in the tests).
+        optional(out, crate::load::CPU_LOAD.percent(), |out, load| out.number(load));
         out.text(",\"mac\":");
         out.string_with(|w| text::write_mac(w, mac));
         out.text(",\"reset_reason\":");
-        optional(out, backend.reset_reason(), |out, reason| out.string(reason));
+        optional(out, platform.reset_reason(), |out, reason| out.string(reason));
 
         out.text("},\"network\":{\"mode\":");
         out.string(network.mode.as_str());
@@ -398,19 +406,24 @@ impl<B: Backend> Api<'_, '_, B> {
         out.text(",\"link\":");
         out.boolean(network.link);
 
-        io.write(out, backend.robot_source());
+        io.write(out, control.robot_source());
         out.text(",\"link\":");
-        optional(out, backend.robot_link(), |out, link| {
+        #[cfg(feature = "robot-link")]
+        optional(out, control.robot_link(), |out, link| {
+            // `connected`: the link is up (connected, and polls succeeding).
             out.text("{\"connected\":");
-            out.boolean(link.connected);
+            out.boolean(link.up);
             out.text(",\"polls\":");
             out.number(link.polls);
             out.text(",\"errors\":");
             out.number(link.errors);
             out.text(",\"last_ok_ms\":");
-            optional(out, link.last_ok_ms, |out, ms| out.number(ms));
+            let last_ok_ms = link.last_ok.map(|at| u32::try_from(at.elapsed().as_millis()).unwrap_or(u32::MAX));
+            optional(out, last_ok_ms, |out, ms| out.number(ms));
             out.text("}");
         });
+        #[cfg(not(feature = "robot-link"))]
+        out.text("null");
 
         out.text("},\"connections\":[");
         for (i, session) in sessions.iter().flatten().enumerate() {
@@ -443,16 +456,14 @@ impl<B: Backend> Api<'_, '_, B> {
         out.number(watchdog.timeout.map_or(0, |timeout| timeout.as_millis()));
         out.text(",\"tripped\":");
         out.boolean(tripped);
-        out.text("},\"storage\":");
-        optional(out, backend.storage(), |out, storage| {
-            out.text("{\"ok\":");
-            out.boolean(storage.ok);
-            out.text(",\"records\":");
-            out.number(storage.records);
-            out.text(",\"erases\":");
-            out.number(storage.erases);
-            out.text("}");
-        });
+        let storage = control.storage();
+        out.text("},\"storage\":{\"ok\":");
+        out.boolean(storage.ok);
+        out.text(",\"records\":");
+        out.number(storage.records);
+        out.text(",\"erases\":");
+        out.number(storage.erases);
+        out.text("}");
         #[cfg(feature = "update")]
         {
             out.text(",\"update\":");
@@ -467,9 +478,15 @@ impl<B: Backend> Api<'_, '_, B> {
             });
         }
         out.text(",\"admin\":{\"password_set\":");
-        out.boolean(backend.password_set());
+        out.boolean(control.password_set());
         out.text("}}");
     }
+}
+
+/// 501 for an update on a device that takes none.
+#[cfg(feature = "update")]
+fn no_updates(out: &mut Out<'_>) -> Reply {
+    refusal(out, Status::NOT_IMPLEMENTED, "firmware", "this device takes no updates")
 }
 
 /// `null`, or the value as `write` writes it.
@@ -828,7 +845,7 @@ fn malformed_refusal(out: &mut Out<'_>, malformed: Malformed) -> Reply {
     Reply::new(Status::BAD_REQUEST)
 }
 
-/// The answer to a change the backend refused.
+/// The answer to a change the settings service refused.
 fn refused_change(out: &mut Out<'_>, refused: Refusal, message: &str) -> Reply {
     let status = match refused {
         Refusal::Storage => Status::INTERNAL_SERVER_ERROR,

@@ -6,7 +6,10 @@ use embassy_net::Stack;
 use embassy_net::tcp::TcpSocket;
 use embassy_time::Duration;
 
-use super::{Backend, Buffers, Http, serve};
+use embedded_storage_async::nor_flash::NorFlash;
+
+use super::{Buffers, Http, serve};
+use crate::control::Platform;
 use crate::server::{Peer, close};
 
 /// Receive buffer of each HTTP socket (a request is read as it comes).
@@ -16,9 +19,10 @@ pub const SOCKET_TX_LEN: usize = 512;
 /// A connection whose peer stops acknowledging for this long is dropped by the stack.
 const TCP_TIMEOUT: Duration = Duration::from_secs(10);
 
-/// Accepts clients on `port` and serves them, one connection at a time,
-/// forever. Run [`super::MAX_HTTP_CONNECTIONS`] of these.
-pub async fn listen<B: Backend>(stack: Stack<'_>, http: &Http<'_, B>, port: u16) -> ! {
+/// Accepts clients on the API's port and serves them, one connection at a
+/// time, forever. Run [`super::MAX_HTTP_CONNECTIONS`] of these.
+pub async fn listen<F: NorFlash, P: Platform>(stack: Stack<'_>, http: &Http<'_, F, P>) -> ! {
+    let port = http.port();
     let mut rx = [0u8; SOCKET_RX_LEN];
     let mut tx = [0u8; SOCKET_TX_LEN];
     let mut buffers = Buffers::new();

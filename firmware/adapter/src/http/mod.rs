@@ -1,13 +1,15 @@
-//! The HTTP JSON API and the device's page (DEVICE.md section 2), behind
-//! the `http` feature: `GET /` (the page, [`page`]), `GET /api/status`,
-//! `GET` and `PUT /api/settings`, `PUT /api/password`, `POST /api/reboot`,
-//! `/api/factory-reset` and `/api/locate` (docs/http-api.md has every
-//! request and response).
+//! The HTTP JSON API and the device's page, behind the `http` feature:
+//! `GET /` (the page, [`page`]), `GET /api/status`, `GET` and `PUT
+//! /api/settings`, `PUT /api/password`, `POST /api/reboot`,
+//! `/api/factory-reset` and `/api/locate`, and with `update` `POST
+//! /api/firmware` (docs/http-api.md has every request and response).
 //!
-//! - [`Backend`] is what a program (a board, hal-sim) gives the API: the
-//!   Modbus server and device, the settings store, the password, reboot.
-//! - [`Http`] is the shared state of the API: the backend, and the lock
-//!   that makes changes one at a time.
+//! The API is a front end: it reads the device and the server, and makes
+//! every change through the settings service ([`Controller`]), which a
+//! program (a board, hal-sim) builds over its own platform.
+//!
+//! - [`Http`] is the shared state of the API: the service, the port, and
+//!   the lock that makes changes one at a time.
 //! - [`serve`] answers one connection over any `embedded-io-async` reader
 //!   and writer; [`listen`] accepts connections on an embassy-net stack
 //!   and serves them, one task per connection ([`MAX_HTTP_CONNECTIONS`]).
@@ -28,8 +30,6 @@
 
 mod api;
 mod auth;
-mod backend;
-mod control;
 pub mod json;
 mod listener;
 pub mod page;
@@ -42,20 +42,18 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::mutex::Mutex;
 use embassy_time::{Duration, Instant};
 use embedded_io_async::{ErrorKind, Read, Write};
+use embedded_storage_async::nor_flash::NorFlash;
 
-#[cfg(feature = "update")]
-pub use backend::FirmwareRefusal;
-pub use backend::{Backend, NetworkStatus, Refusal, RobotLinkStatus, RobotSource, StorageStatus};
-pub use control::{Controller, Platform};
 pub use listener::{SOCKET_RX_LEN, SOCKET_TX_LEN, listen};
 pub use request::Limit;
 pub use response::Status;
 
 use self::api::Api;
 use self::json::Out;
+use crate::control::{Controller, Platform};
 use crate::server::SOCKET_POOL;
 
-/// The HTTP port (hal-sim: `--http-port`).
+/// The HTTP port (hal-sim: `--http-port`), which `modbus.port` may not take.
 pub const HTTP_PORT: u16 = 80;
 
 /// Connections served at once: each board runs this many [`listen`] tasks.
@@ -103,7 +101,7 @@ pub const UPLOAD_TIMEOUT: Duration = Duration::from_secs(120);
 /// How long `POST /api/locate` blinks the status LED.
 pub const LOCATE_DURATION: Duration = Duration::from_secs(10);
 
-/// The admin password's length in bytes (DEVICE.md section 1).
+/// The admin password's length in bytes (docs/http-api.md, `PUT /api/password`).
 pub const MIN_PASSWORD_LEN: usize = 8;
 pub const MAX_PASSWORD_LEN: usize = 64;
 
@@ -157,35 +155,43 @@ impl fmt::Display for Error {
 
 impl core::error::Error for Error {}
 
-/// The API's shared state: the backend, and the lock that makes changes
-/// one at a time (an async lock among the HTTP tasks only: waiting for it
-/// never blocks the executor or a Modbus session).
-pub struct Http<'a, B: Backend> {
-    backend: &'a B,
+/// The API's shared state: the settings service, the port the API listens
+/// on, and the lock that makes changes one at a time (an async lock among
+/// the HTTP tasks only: waiting for it never blocks the executor or a
+/// Modbus session).
+pub struct Http<'a, F: NorFlash, P: Platform> {
+    control: &'a Controller<'a, F, P>,
+    port: u16,
     changes: Mutex<CriticalSectionRawMutex, ()>,
 }
 
-impl<B: Backend> fmt::Debug for Http<'_, B> {
+impl<F: NorFlash, P: Platform> fmt::Debug for Http<'_, F, P> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.debug_struct("Http").finish_non_exhaustive()
+        f.debug_struct("Http").field("port", &self.port).finish_non_exhaustive()
     }
 }
 
-impl<'a, B: Backend> Http<'a, B> {
-    pub const fn new(backend: &'a B) -> Self {
-        Self { backend, changes: Mutex::new(()) }
+impl<'a, F: NorFlash, P: Platform> Http<'a, F, P> {
+    /// The API over `control`, listening on `port` ([`HTTP_PORT`] on the boards).
+    pub const fn new(control: &'a Controller<'a, F, P>, port: u16) -> Self {
+        Self { control, port, changes: Mutex::new(()) }
     }
 
-    /// The backend.
-    pub fn backend(&self) -> &B {
-        self.backend
+    /// The settings service the API makes its changes through.
+    pub fn control(&self) -> &'a Controller<'a, F, P> {
+        self.control
+    }
+
+    /// The port the API listens on.
+    pub fn port(&self) -> u16 {
+        self.port
     }
 
     /// Does what an accepted request left to do ([`serve`] returns it).
     pub async fn perform(&self, action: Action) {
         match action {
-            Action::Reboot => self.backend.reboot(),
-            Action::FactoryReset => self.backend.factory_reset().await,
+            Action::Reboot => self.control.reboot(),
+            Action::FactoryReset => self.control.factory_reset().await,
         }
     }
 }
@@ -219,8 +225,8 @@ impl Buffers {
 /// A request that breaks a limit, its deadline or HTTP's grammar is
 /// answered here (431, 413, 408, 400) and returns the [`Error`]; so does a
 /// transport error (with no answer).
-pub async fn serve<B: Backend, R: Read, W: Write>(
-    http: &Http<'_, B>,
+pub async fn serve<F: NorFlash, P: Platform, R: Read, W: Write>(
+    http: &Http<'_, F, P>,
     peer: Option<[u8; 4]>,
     mut reader: R,
     mut writer: W,
@@ -268,60 +274,29 @@ fn refusal(out: &mut Out<'_>, error: Error) -> api::Reply {
     api::Reply::new(status)
 }
 
-/// Feeds an upload from `body` into the board's updater
-/// ([`feed_update`]): what a board's [`Platform::receive_firmware`] does.
-/// Unsupported without an updater.
+/// Why an update file was not taken (`POST /api/firmware`), as the API
+/// answers it; the running image stays.
 #[cfg(feature = "update")]
-pub async fn receive_update<M, D, S, R>(
-    update: &crate::update::boot::BoardUpdate<M, D, S>,
-    body: &mut request::Stream<'_, R>,
-) -> Result<crate::io::Version, FirmwareRefusal>
-where
-    M: embassy_sync::blocking_mutex::raw::RawMutex,
-    D: embedded_storage_async::nor_flash::NorFlash,
-    S: embedded_storage_async::nor_flash::NorFlash,
-    R: Read,
-{
-    let Some(updater) = update.updater() else { return Err(FirmwareRefusal::Unsupported) };
-    let received = feed_update(&mut *updater.lock().await, body).await;
-    match &received {
-        Ok(_version) => info!("update: {:?} received and armed; rebooting into it", _version),
-        Err(_refusal) => warn!("update: refused: {:?}", _refusal),
-    }
-    received
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum FirmwareRefusal {
+    /// The file is not one this device takes: not an update file, another
+    /// board's, a bad signature, cut off (400, with the message).
+    Invalid(&'static str),
+    /// The update partition failed (500).
+    Storage,
+    /// This program takes no updates (501).
+    Unsupported,
 }
 
-/// Feeds an update file from `body` into `updater` (begin, each chunk,
-/// finish). On any error the upload is dropped and nothing is armed.
+/// An upload's body, chunk by chunk, as the updater takes it.
 #[cfg(feature = "update")]
-pub async fn feed_update<D, S, R>(
-    updater: &mut crate::update::Updater<'_, D, S>,
-    body: &mut request::Stream<'_, R>,
-) -> Result<crate::io::Version, FirmwareRefusal>
-where
-    D: embedded_storage_async::nor_flash::NorFlash,
-    S: embedded_storage_async::nor_flash::NorFlash,
-    R: Read,
-{
-    updater.begin().await.map_err(update_refusal)?;
-    loop {
-        match body.chunk().await {
-            Ok(Some(chunk)) => {
-                if let Err(error) = updater.write(chunk).await {
-                    updater.abort();
-                    return Err(update_refusal(error));
-                }
-            }
-            Ok(None) => break,
-            Err(error) => {
-                updater.abort();
-                return Err(FirmwareRefusal::Body(error));
-            }
-        }
+impl<R: Read> crate::update::boot::Source for request::Stream<'_, R> {
+    type Error = Error;
+
+    async fn chunk(&mut self) -> Result<Option<&[u8]>, Error> {
+        request::Stream::chunk(self).await
     }
-    let accepted = updater.finish().await.map_err(update_refusal)?;
-    let crate::update::Version { major, minor, patch } = accepted.version;
-    Ok(crate::io::Version { major, minor, patch })
 }
 
 /// What the API answers for an update the core refused.

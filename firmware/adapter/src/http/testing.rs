@@ -1,38 +1,55 @@
-//! What the HTTP tests share: a backend that records what it is asked, and
+//! What the HTTP tests share: the settings service over a real store on a
+//! rule-keeping flash, with a platform that records what it is asked, and
 //! a client that sends bytes over test-support's duplex and reads the
 //! response back, on embassy-time's mock clock.
 
-use std::cell::{Cell, RefCell};
+use std::cell::Cell;
+#[cfg(feature = "update")]
+use std::cell::RefCell;
 use std::future::Future;
+use std::ops::Range;
 use std::pin::Pin;
 use std::task::Poll;
 
 use embassy_time::Duration;
 use test_support::duplex::{Wire, poll_once};
 
-use super::{Action, Backend, Buffers, Error, Http, NetworkStatus, Refusal, serve};
-use crate::device::Device;
+use super::{Action, Buffers, Error, HTTP_PORT, Http, serve};
+use crate::control::{Controller, NetworkStatus, Platform};
 use crate::device::Watchdog;
 use crate::server::testing::{Clock, server_with};
-use crate::server::{Config, Server};
 use crate::settings::{Cidr, NetMode, Settings};
+use crate::storage::Store;
+use crate::storage::flash::{RuleFlash, Wearing};
 
 /// The client the tests talk from (`ALLOWED` is in `allow_write` when one is set).
 pub const CLIENT: [u8; 4] = [10, 0, 0, 2];
 
-/// A backend over a real server and device, keeping its settings and
-/// password in memory.
-pub struct TestBackend {
-    pub server: &'static Server<'static, Device<'static>>,
-    pub settings: RefCell<Settings>,
-    pub password: RefCell<Option<Vec<u8>>>,
-    /// Calls of `apply` that saved.
-    pub applied: Cell<usize>,
-    /// The next `apply` or `set_password` fails so.
-    pub fail: Cell<Option<Refusal>>,
+/// The largest update file the test platform takes.
+#[cfg(feature = "update")]
+pub const TEST_FIRMWARE_CAPACITY: usize = 6000;
+
+/// The version the test platform says an update file holds.
+#[cfg(feature = "update")]
+pub const TEST_FIRMWARE_VERSION: crate::io::Version = crate::io::Version { major: 9, minor: 8, patch: 7 };
+
+/// The test platform's MAC.
+pub const TEST_MAC: [u8; 6] = [0x02, 0x4d, 0x42, 0x53, 0x49, 0x4d];
+
+/// The settings flash's page, and its range: two pages.
+const PAGE: usize = 4096;
+const RANGE: Range<u32> = 0..(2 * PAGE) as u32;
+
+/// The tests' settings flash: rule-keeping, worn out while the platform's
+/// `flash_fails` is set.
+pub type TestFlash = Wearing<'static, 4, PAGE>;
+
+/// A platform that records what it is asked.
+pub struct TestPlatform {
     pub located: Cell<Option<Duration>>,
     pub reboots: Cell<usize>,
-    pub factory_resets: Cell<usize>,
+    /// The settings flash fails while set.
+    pub flash_fails: &'static Cell<bool>,
     /// The last update file received, and the length of each chunk it came in.
     #[cfg(feature = "update")]
     pub firmware: RefCell<Vec<u8>>,
@@ -40,96 +57,13 @@ pub struct TestBackend {
     pub firmware_chunks: RefCell<Vec<usize>>,
     /// The next update file is refused so, once received whole.
     #[cfg(feature = "update")]
-    pub firmware_refusal: Cell<Option<super::FirmwareRefusal>>,
+    pub firmware_refusal: Cell<Option<crate::update::Error>>,
     /// The largest update file taken ([`TEST_FIRMWARE_CAPACITY`] unless changed).
     #[cfg(feature = "update")]
     pub firmware_capacity: Cell<usize>,
 }
 
-/// The largest update file the test backend takes.
-#[cfg(feature = "update")]
-pub const TEST_FIRMWARE_CAPACITY: usize = 6000;
-
-/// The version the test backend says an update file holds.
-#[cfg(feature = "update")]
-pub const TEST_FIRMWARE_VERSION: crate::io::Version = crate::io::Version { major: 9, minor: 8, patch: 7 };
-
-/// The test backend's MAC.
-pub const TEST_MAC: [u8; 6] = [0x02, 0x4d, 0x42, 0x53, 0x49, 0x4d];
-
-impl TestBackend {
-    pub fn new() -> Self {
-        let settings = Settings::DEFAULT;
-        let (server, _) = server_with(settings.server_config(TEST_MAC), Watchdog::OFF);
-        Self {
-            server,
-            settings: RefCell::new(settings),
-            password: RefCell::new(None),
-            applied: Cell::new(0),
-            fail: Cell::new(None),
-            located: Cell::new(None),
-            reboots: Cell::new(0),
-            factory_resets: Cell::new(0),
-            #[cfg(feature = "update")]
-            firmware: RefCell::new(Vec::new()),
-            #[cfg(feature = "update")]
-            firmware_chunks: RefCell::new(Vec::new()),
-            #[cfg(feature = "update")]
-            firmware_refusal: Cell::new(None),
-            #[cfg(feature = "update")]
-            firmware_capacity: Cell::new(TEST_FIRMWARE_CAPACITY),
-        }
-    }
-}
-
-impl Backend for TestBackend {
-    fn server(&self) -> &Server<'_, Device<'_>> {
-        self.server
-    }
-
-    fn settings(&self) -> Settings {
-        *self.settings.borrow()
-    }
-
-    async fn apply(&self, settings: &Settings) -> Result<bool, Refusal> {
-        if let Some(refusal) = self.fail.take() {
-            return Err(refusal);
-        }
-        let old = self.settings.replace(*settings);
-        self.server.set_config(Config { port: self.server.config().port, ..settings.server_config(TEST_MAC) });
-        self.server.service().set_watchdog(settings.watchdog());
-        self.applied.set(self.applied.get() + 1);
-        Ok(old.reboot_required(settings))
-    }
-
-    fn password_set(&self) -> bool {
-        self.password.borrow().is_some()
-    }
-
-    async fn verify_password(&self, password: &[u8]) -> bool {
-        self.password.borrow().as_deref() == Some(password)
-    }
-
-    async fn set_password(&self, password: &[u8]) -> Result<(), Refusal> {
-        if let Some(refusal) = self.fail.take() {
-            return Err(refusal);
-        }
-        *self.password.borrow_mut() = Some(password.to_vec());
-        Ok(())
-    }
-
-    fn reboot(&self) {
-        self.reboots.set(self.reboots.get() + 1);
-    }
-
-    async fn factory_reset(&self) {
-        self.factory_resets.set(self.factory_resets.get() + 1);
-    }
-
-    fn locate(&self, duration: Duration) {
-        self.located.set(Some(duration));
-    }
-
+impl Platform for TestPlatform {
     fn model(&self) -> &'static str {
         "test-board"
     }
@@ -147,32 +81,83 @@ impl Backend for TestBackend {
         }
     }
 
+    fn reboot(&self) {
+        self.reboots.set(self.reboots.get() + 1);
+    }
+
+    fn locate(&self, duration: Duration) {
+        self.located.set(Some(duration));
+    }
+
+    fn salt(&self) -> [u8; 16] {
+        [7; 16]
+    }
+
     #[cfg(feature = "update")]
     fn firmware_capacity(&self) -> usize {
         self.firmware_capacity.get()
     }
 
     #[cfg(feature = "update")]
-    async fn receive_firmware<R: embedded_io_async::Read>(
+    async fn receive_firmware<S: crate::update::boot::Source>(
         &self,
-        body: &mut super::request::Stream<'_, R>,
-    ) -> Result<crate::io::Version, super::FirmwareRefusal> {
+        body: &mut S,
+    ) -> Result<crate::io::Version, crate::update::boot::Refused<S::Error>> {
+        use crate::update::boot::Refused;
         self.firmware.borrow_mut().clear();
         self.firmware_chunks.borrow_mut().clear();
-        while let Some(chunk) = body.chunk().await.map_err(super::FirmwareRefusal::Body)? {
+        while let Some(chunk) = body.chunk().await.map_err(Refused::Source)? {
             self.firmware.borrow_mut().extend_from_slice(chunk);
             self.firmware_chunks.borrow_mut().push(chunk.len());
         }
         match self.firmware_refusal.take() {
-            Some(refusal) => Err(refusal),
+            Some(error) => Err(Refused::Update(error)),
             None => Ok(TEST_FIRMWARE_VERSION),
         }
     }
 }
 
-/// The API over a fresh [`TestBackend`] (leaked: tests only).
-pub fn api() -> &'static Http<'static, TestBackend> {
-    Box::leak(Box::new(Http::new(Box::leak(Box::new(TestBackend::new())))))
+/// The settings service the tests' API changes the device through.
+pub type TestControl = Controller<'static, TestFlash, TestPlatform>;
+
+/// The API the tests talk to.
+pub type TestHttp = Http<'static, TestFlash, TestPlatform>;
+
+/// The settings service over a fresh server and device, and an empty
+/// settings flash (all leaked: tests only).
+pub fn control() -> &'static TestControl {
+    let settings = Settings::DEFAULT;
+    let (server, _) = server_with(settings.server_config(TEST_MAC), Watchdog::OFF);
+    let fails: &'static Cell<bool> = Box::leak(Box::default());
+    let memory: &'static mut [u8] = Box::leak(vec![0xff; 2 * PAGE].into_boxed_slice());
+    let flash = Wearing::new(RuleFlash::new(memory), fails);
+    let mut store = Store::new(flash, RANGE).expect("two whole pages");
+    let loaded = embassy_futures::block_on(store.load(&settings));
+    let platform = TestPlatform {
+        located: Cell::new(None),
+        reboots: Cell::new(0),
+        flash_fails: fails,
+        #[cfg(feature = "update")]
+        firmware: RefCell::default(),
+        #[cfg(feature = "update")]
+        firmware_chunks: RefCell::default(),
+        #[cfg(feature = "update")]
+        firmware_refusal: Cell::new(None),
+        #[cfg(feature = "update")]
+        firmware_capacity: Cell::new(TEST_FIRMWARE_CAPACITY),
+    };
+    Box::leak(Box::new(Controller::new(server, platform, store, &loaded)))
+}
+
+/// The API over a fresh [`control`] (leaked: tests only).
+pub fn api() -> &'static TestHttp {
+    Box::leak(Box::new(Http::new(control(), HTTP_PORT)))
+}
+
+/// Records saved in the settings flash: each change saved adds one (the
+/// settings, or the password).
+pub fn saved(http: &TestHttp) -> u32 {
+    http.control().storage().records
 }
 
 /// A response as the client read it.
@@ -222,7 +207,7 @@ pub struct Connection {
 
 impl Connection {
     /// A connection from `peer` to `http`.
-    pub fn open(http: &'static Http<'static, TestBackend>, peer: Option<[u8; 4]>) -> Self {
+    pub fn open(http: &'static TestHttp, peer: Option<[u8; 4]>) -> Self {
         let (wire, end) = Wire::new();
         let (reader, writer) = end.split();
         let buffers: &'static mut Buffers = Box::leak(Box::default());
@@ -265,7 +250,7 @@ impl Connection {
 /// Sends `request` whole from `peer` and serves it to the end (the clock
 /// moves on while the server waits): the response and the result.
 pub fn exchange(
-    http: &'static Http<'static, TestBackend>,
+    http: &'static TestHttp,
     clock: &Clock,
     peer: Option<[u8; 4]>,
     request: &[u8],

@@ -5,19 +5,19 @@ use embassy_time::{Duration, Instant};
 use proptest::prelude::*;
 use serde_json::json;
 
-use super::testing::{CLIENT, Connection, Response, api, basic, exchange, request};
+use super::testing::{CLIENT, Connection, Response, api, basic, exchange, request, saved};
 use super::*;
 use crate::server::testing::Clock;
 use crate::settings::{Field, Settings};
 
-fn get(http: &'static Http<'static, testing::TestBackend>, clock: &Clock, path: &str) -> Response {
+fn get(http: &'static testing::TestHttp, clock: &Clock, path: &str) -> Response {
     let (response, result) = exchange(http, clock, Some(CLIENT), &request("GET", path, "", ""));
     assert_eq!(result, Ok(None));
     response.expect("a whole response")
 }
 
 fn send(
-    http: &'static Http<'static, testing::TestBackend>,
+    http: &'static testing::TestHttp,
     clock: &Clock,
     method: &str,
     path: &str,
@@ -28,7 +28,7 @@ fn send(
     response.expect("a whole response")
 }
 
-fn put_settings(http: &'static Http<'static, testing::TestBackend>, clock: &Clock, body: &str) -> Response {
+fn put_settings(http: &'static testing::TestHttp, clock: &Clock, body: &str) -> Response {
     send(http, clock, "PUT", "/api/settings", "", body)
 }
 
@@ -36,7 +36,7 @@ fn put_settings(http: &'static Http<'static, testing::TestBackend>, clock: &Cloc
 fn the_status_document_shows_the_device() {
     let clock = Clock::take();
     let http = api();
-    let server = http.backend().server;
+    let server = http.control().server();
     server.service().set_digital_inputs(0b101);
     server.service().update(|image| image.set_register(crate::map::table::reg::DIGITAL_OUTPUTS, 0x8001));
     server.slots().open(0, 8, Instant::now(), [198, 18, 0, 1], true);
@@ -73,7 +73,7 @@ fn the_status_document_shows_the_device() {
     assert_eq!(status["counters"].as_object().unwrap().len(), 15);
     assert_eq!(status["counters"]["requests"], 0);
     assert_eq!(status["watchdog"], json!({"timeout_ms": 0, "tripped": false}));
-    assert!(status["storage"].is_null());
+    assert_eq!(status["storage"], json!({"ok": true, "records": 0, "erases": 0}), "an empty store");
     assert_eq!(status["admin"], json!({"password_set": false}));
 }
 
@@ -115,7 +115,7 @@ fn the_page_is_served_gzipped_from_flash_to_a_client_that_takes_gzip() {
 fn the_settings_document_has_every_field_grouped_and_no_secret() {
     let clock = Clock::take();
     let http = api();
-    *http.backend().password.borrow_mut() = Some(b"correct horse".to_vec());
+    embassy_futures::block_on(http.control().set_password(b"correct horse")).unwrap();
     let response = get(http, &clock, "/api/settings");
     assert_eq!(response.status, 200);
     assert!(!String::from_utf8_lossy(&response.body).contains("horse"));
@@ -140,37 +140,37 @@ fn the_settings_document_has_every_field_grouped_and_no_secret() {
 fn a_change_applies_a_subset_and_says_whether_to_reboot() {
     let clock = Clock::take();
     let http = api();
-    let backend = http.backend();
+    let control = http.control();
     let response = put_settings(http, &clock, r#"{"modbus": {"unit_id": 7, "idle_timeout_s": "30"}}"#);
     assert_eq!(response.status, 200, "{}", String::from_utf8_lossy(&response.body));
     let document = response.json();
     assert_eq!(document["modbus"]["unit_id"], "7");
     assert_eq!(document["modbus"]["idle_timeout_s"], 30);
     assert_eq!(document["reboot_required"], false);
-    assert_eq!(backend.settings().modbus.unit_id, Some(7));
-    assert_eq!(backend.server.config().policy.unit_id, Some(7), "in force at once");
-    assert_eq!(backend.applied.get(), 1);
+    assert_eq!(control.settings().modbus.unit_id, Some(7));
+    assert_eq!(control.server().config().policy.unit_id, Some(7), "in force at once");
+    assert_eq!(saved(http), 1);
 
     let response = put_settings(http, &clock, r#"{"modbus": {"port": 1502}, "network": {"mode": "dhcp"}}"#);
     assert_eq!(response.json()["reboot_required"], true, "the port applies after a reboot");
-    assert_eq!(backend.settings().modbus.port, 1502);
+    assert_eq!(control.settings().modbus.port, 1502);
 
     // The document from GET, sent back as it is: nothing changes.
     let document = get(http, &clock, "/api/settings");
     let response = put_settings(http, &clock, std::str::from_utf8(&document.body).unwrap());
     assert_eq!(response.status, 200);
     assert_eq!(response.json()["reboot_required"], false);
-    assert_eq!(backend.applied.get(), 2, "no change, no save");
+    assert_eq!(saved(http), 2, "no change, no save");
     assert_eq!(put_settings(http, &clock, "{}").status, 200);
-    assert_eq!(backend.applied.get(), 2);
+    assert_eq!(saved(http), 2);
 }
 
 #[test]
 fn a_bad_change_is_refused_field_by_field_and_changes_nothing() {
     let clock = Clock::take();
     let http = api();
-    let backend = http.backend();
-    let before = backend.settings();
+    let control = http.control();
+    let before = control.settings();
     let body = r#"{
         "modbus": {"unit_id": 300, "port": true, "write_policy": "loose", "colour": "red", "unit_id": 5},
         "network": {"gateway": "10.0.0.1"},
@@ -194,8 +194,8 @@ fn a_bad_change_is_refused_field_by_field_and_changes_nothing() {
             "admin.password": "set it with PUT /api/password",
         }})
     );
-    assert_eq!(backend.settings(), before);
-    assert_eq!(backend.applied.get(), 0);
+    assert_eq!(control.settings(), before);
+    assert_eq!(saved(http), 0);
     // Each field's own rules pass: the rules between fields are checked.
     let response = put_settings(http, &clock, r#"{"network": {"mode": "static", "gateway": "10.0.0.1"}}"#);
     assert_eq!(response.status, 400);
@@ -209,8 +209,8 @@ fn a_bad_change_is_refused_field_by_field_and_changes_nothing() {
     let response = put_settings(http, &clock, r#"{"modbus": {"port": 80}}"#);
     assert_eq!(response.status, 400);
     assert_eq!(response.json(), json!({"errors": {"modbus.port": "must not be the HTTP port"}}));
-    assert_eq!(backend.settings(), before);
-    assert_eq!(backend.applied.get(), 0);
+    assert_eq!(control.settings(), before);
+    assert_eq!(saved(http), 0);
 }
 
 #[test]
@@ -222,29 +222,34 @@ fn a_body_that_is_not_json_is_refused_where_it_breaks() {
         assert_eq!(response.status, 400, "{body:?}");
         assert_eq!(response.json(), json!({"errors": {"body": format!("not valid JSON (at byte {at})")}}), "{body:?}");
     }
-    assert_eq!(http.backend().applied.get(), 0);
+    assert_eq!(saved(http), 0);
 }
 
 #[test]
 fn a_failed_save_changes_nothing() {
     let clock = Clock::take();
     let http = api();
-    let backend = http.backend();
-    for (refusal, status) in [(Refusal::Storage, 500), (Refusal::Unsupported, 501)] {
-        backend.fail.set(Some(refusal));
-        let response = put_settings(http, &clock, r#"{"modbus": {"unit_id": 9}}"#);
-        assert_eq!(response.status, status);
-        assert_eq!(response.json()["errors"]["request"], "the settings were not saved; nothing changed");
-        assert_eq!(backend.settings(), Settings::DEFAULT);
-    }
+    let control = http.control();
+    // A flash that fails every write and erase: the store cannot save.
+    control.platform().flash_fails.set(true);
+    let response = put_settings(http, &clock, r#"{"modbus": {"unit_id": 9}}"#);
+    assert_eq!(response.status, 500);
+    assert_eq!(response.json()["errors"]["request"], "the settings were not saved; nothing changed");
+    assert_eq!(control.settings(), Settings::DEFAULT);
+    assert_eq!(control.server().config().policy.unit_id, None, "nothing in force either");
+    let response = send(http, &clock, "PUT", "/api/password", "", r#"{"password": "s3cret-pass"}"#);
+    assert_eq!(response.status, 500);
+    assert_eq!(response.json()["errors"]["request"], "the password was not saved; nothing changed");
+    assert!(!control.password_set());
+    assert_eq!(get(http, &clock, "/api/status").json()["storage"]["ok"], false);
 }
 
 #[test]
 fn changes_need_the_password_once_one_is_set() {
     let clock = Clock::take();
     let http = api();
-    let backend = http.backend();
-    *backend.password.borrow_mut() = Some(b"s3cret-pass".to_vec());
+    let control = http.control();
+    embassy_futures::block_on(control.set_password(b"s3cret-pass")).unwrap();
     let body = r#"{"modbus": {"unit_id": 3}}"#;
     let response = put_settings(http, &clock, body);
     assert_eq!(response.status, 401);
@@ -259,11 +264,11 @@ fn changes_need_the_password_once_one_is_set() {
     assert_eq!(took, AUTH_FAILURE_DELAY);
     assert_eq!(Response::parse(&connection.wire.take_replies()).unwrap().status, 401);
     assert_eq!(send(http, &clock, "PUT", "/api/settings", "Authorization: Bearer x\r\n", body).status, 401);
-    assert_eq!(backend.applied.get(), 0);
+    assert_eq!(saved(http), 1, "the password's record alone");
 
     let response = send(http, &clock, "PUT", "/api/settings", &basic("s3cret-pass"), body);
     assert_eq!(response.status, 200);
-    assert_eq!(backend.settings().modbus.unit_id, Some(3));
+    assert_eq!(control.settings().modbus.unit_id, Some(3));
     // Reading never needs it.
     assert_eq!(get(http, &clock, "/api/status").json()["admin"]["password_set"], true);
 }
@@ -272,7 +277,7 @@ fn changes_need_the_password_once_one_is_set() {
 fn changes_come_only_from_addresses_allow_write_admits() {
     let clock = Clock::take();
     let http = api();
-    let backend = http.backend();
+    let control = http.control();
     let response = put_settings(http, &clock, r#"{"modbus": {"allow_write": "10.0.0.0/24"}}"#);
     assert_eq!(response.status, 200);
     let body = r#"{"modbus": {"unit_id": 4}}"#;
@@ -285,11 +290,11 @@ fn changes_come_only_from_addresses_allow_write_admits() {
         assert_eq!(response.unwrap().status, 403);
     }
     // Even with the right password, from outside.
-    *backend.password.borrow_mut() = Some(b"s3cret-pass".to_vec());
+    embassy_futures::block_on(control.set_password(b"s3cret-pass")).unwrap();
     let (response, _) =
         exchange(http, &clock, Some([192, 168, 0, 1]), &request("PUT", "/api/settings", &basic("s3cret-pass"), body));
     assert_eq!(response.unwrap().status, 403);
-    assert_eq!(backend.settings().modbus.unit_id, None);
+    assert_eq!(control.settings().modbus.unit_id, None);
     // Reading is for everyone.
     let (response, _) = exchange(http, &clock, Some([192, 168, 0, 1]), &request("GET", "/api/settings", "", ""));
     assert_eq!(response.unwrap().status, 200);
@@ -299,7 +304,7 @@ fn changes_come_only_from_addresses_allow_write_admits() {
 fn the_password_is_set_first_freely_then_only_with_the_current_one() {
     let clock = Clock::take();
     let http = api();
-    let backend = http.backend();
+    let control = http.control();
     for (body, message) in [
         (r#"{"password": "short"}"#, json!({"password": "8-64 bytes"})),
         (&format!(r#"{{"password": "{}"}}"#, "x".repeat(65)), json!({"password": "8-64 bytes"})),
@@ -311,17 +316,17 @@ fn the_password_is_set_first_freely_then_only_with_the_current_one() {
         assert_eq!(response.status, 400, "{body}");
         assert_eq!(response.json(), json!({ "errors": message }), "{body}");
     }
-    assert!(!backend.password_set());
+    assert!(!control.password_set());
     let response = send(http, &clock, "PUT", "/api/password", "", &format!(r#"{{"password": "{}"}}"#, "é".repeat(32)));
     assert_eq!(response.status, 200, "64 bytes of UTF-8");
     assert_eq!(response.json(), json!({"admin": {"password_set": true}}));
-    assert_eq!(backend.password.borrow().as_ref().unwrap().len(), 64);
+    assert!(embassy_futures::block_on(control.verify_password("é".repeat(32).as_bytes())), "all 64 bytes");
 
     let again = r#"{"password": "n3w-password"}"#;
     assert_eq!(send(http, &clock, "PUT", "/api/password", "", again).status, 401);
     let current = basic(&"é".repeat(32));
     assert_eq!(send(http, &clock, "PUT", "/api/password", &current, again).status, 200);
-    assert_eq!(backend.password.borrow().as_deref(), Some(b"n3w-password".as_slice()));
+    assert!(embassy_futures::block_on(control.verify_password(b"n3w-password")));
     assert_eq!(get(http, &clock, "/api/settings").json()["admin"]["password_set"], true);
 }
 
@@ -329,25 +334,26 @@ fn the_password_is_set_first_freely_then_only_with_the_current_one() {
 fn reboot_factory_reset_and_locate() {
     let clock = Clock::take();
     let http = api();
-    let backend = http.backend();
+    let control = http.control();
     let (response, result) = exchange(http, &clock, Some(CLIENT), &request("POST", "/api/reboot", "", ""));
     let response = response.unwrap();
     assert_eq!((response.status, response.json()), (202, json!({"rebooting": true})));
     assert_eq!(result, Ok(Some(Action::Reboot)), "left to the caller, after the connection closes");
-    assert_eq!(backend.reboots.get(), 0);
+    let platform = control.platform();
+    assert_eq!(platform.reboots.get(), 0);
     embassy_futures::block_on(http.perform(Action::Reboot));
-    assert_eq!(backend.reboots.get(), 1);
+    assert_eq!(platform.reboots.get(), 1);
 
     let (response, result) = exchange(http, &clock, Some(CLIENT), &request("POST", "/api/factory-reset", "", ""));
     assert_eq!(response.unwrap().json(), json!({"factory_reset": true, "rebooting": true}));
     assert_eq!(result, Ok(Some(Action::FactoryReset)));
     embassy_futures::block_on(http.perform(Action::FactoryReset));
-    assert_eq!(backend.factory_resets.get(), 1);
+    assert_eq!((platform.reboots.get(), saved(http)), (2, 0), "erased, then rebooted");
 
     let (response, result) = exchange(http, &clock, Some(CLIENT), &request("POST", "/api/locate", "", "{}"));
     assert_eq!(response.unwrap().json(), json!({"locating_s": 10}));
     assert_eq!(result, Ok(None));
-    assert_eq!(backend.located.get(), Some(LOCATE_DURATION));
+    assert_eq!(platform.located.get(), Some(LOCATE_DURATION));
 }
 
 #[test]
@@ -376,7 +382,7 @@ fn unknown_paths_are_404_and_wrong_methods_405() {
         assert_eq!(response.status, 405, "{method} {path}");
         assert_eq!(response.header("allow"), Some(allow));
     }
-    assert_eq!(http.backend().reboots.get() + http.backend().applied.get(), 0);
+    assert_eq!((http.control().platform().reboots.get(), saved(http)), (0, 0));
 }
 
 #[test]
@@ -407,7 +413,7 @@ fn a_body_over_the_limit_is_refused_before_it_is_read() {
         b"PUT /api/settings HTTP/1.1\r\nContent-Length: 18446744073709551616\r\n\r\n",
     );
     assert_eq!((response.unwrap().status, result), (413, Err(Error::Limit(Limit::BodyTooLarge))));
-    assert_eq!(http.backend().applied.get(), 0);
+    assert_eq!(saved(http), 0);
 }
 
 #[test]
@@ -453,7 +459,7 @@ fn a_half_sent_request_times_out() {
         clock.advance(Duration::from_millis(100));
     }
     assert_eq!(connection.result, Some(Err(Error::Timeout)));
-    assert_eq!(http.backend().applied.get(), 0);
+    assert_eq!(saved(http), 0);
 }
 
 #[test]
@@ -475,7 +481,7 @@ fn every_prefix_of_a_request_is_waited_on_then_answered_or_closed() {
             let status = Response::parse(&replies).map(|r| r.status);
             assert!(matches!(status, Some(400)), "cut at {cut}: {status:?}");
         }
-        assert_eq!(http.backend().applied.get(), 0, "cut at {cut}");
+        assert_eq!(saved(http), 0, "cut at {cut}");
     }
     // Whole, and in reads of every small size: the same answer.
     for size in [0, 1, 2, 3, 7, 64] {
@@ -521,12 +527,12 @@ fn garbage_gets_a_400() {
 fn the_largest_documents_fit_the_response_buffer() {
     let clock = Clock::take();
     let http = api();
-    let backend = http.backend();
+    let control = http.control();
     // Every slot open, the counters and the clock at their widest.
     for slot in 0..crate::server::SOCKET_POOL {
-        backend.server.slots().open(slot, crate::server::SOCKET_POOL, Instant::now(), [198, 18, 0, 1], false);
+        control.server().slots().open(slot, crate::server::SOCKET_POOL, Instant::now(), [198, 18, 0, 1], false);
     }
-    for counter in [&backend.server.stats().requests, &backend.server.stats().bad_protocol] {
+    for counter in [&control.server().stats().requests, &control.server().stats().bad_protocol] {
         counter.store(u32::MAX, core::sync::atomic::Ordering::Relaxed);
     }
     let mut settings = Settings::DEFAULT;
@@ -541,7 +547,7 @@ fn the_largest_documents_fit_the_response_buffer() {
         settings.set(field, &text).unwrap();
     }
     // Everyone may write: the widest allow-list admits 255.255.255.255/32 only.
-    *backend.settings.borrow_mut() = settings;
+    embassy_futures::block_on(control.apply(&settings)).unwrap();
     clock.advance(Duration::from_secs(u64::from(u32::MAX)));
     let status = get(http, &clock, "/api/status");
     assert_eq!(status.status, 200);
@@ -551,7 +557,8 @@ fn the_largest_documents_fit_the_response_buffer() {
     assert_eq!(document.status, 200);
     assert!(document.body.len() <= MAX_BODY_LEN, "the settings document can be sent back: {}", document.body.len());
     // Every field wrong: every message listed.
-    *backend.settings.borrow_mut() = Settings::DEFAULT;
+    embassy_futures::block_on(control.apply(&Settings::DEFAULT)).unwrap();
+    let records = saved(http);
     let mut groups: Vec<(&str, Vec<String>)> = Vec::new();
     for &field in Field::ALL {
         if groups.last().is_none_or(|(group, _)| *group != field.group()) {
@@ -569,7 +576,7 @@ fn the_largest_documents_fit_the_response_buffer() {
     let response = put_settings(http, &clock, &format!(r#"{{"modbus": {{{}}}}}"#, many.join(",")));
     assert_eq!(response.status, 400);
     assert_eq!(response.json()["errors"].as_object().unwrap().len(), 8);
-    assert_eq!(backend.applied.get(), 0);
+    assert_eq!(saved(http), records, "nothing saved");
 }
 
 /// A request mostly well-formed, with random parts: a method, a path, a
@@ -621,8 +628,8 @@ proptest! {
     ) {
         let clock = Clock::take();
         let http = api();
-        let backend = http.backend();
-        let before = backend.settings();
+        let control = http.control();
+        let before = control.settings();
         let mut connection = Connection::open(http, Some(CLIENT));
         connection.wire.read_sizes(sizes);
         connection.wire.send(&stream);
@@ -634,12 +641,15 @@ proptest! {
         prop_assert!(took.is_some(), "the connection ends within {} ms", bound.as_millis());
         let replies = connection.wire.take_replies();
         let response = Response::parse(&replies);
-        let changed = backend.settings() != before;
+        let changed = control.settings() != before;
         let accepted = response.as_ref().is_some_and(|r| r.status == 200);
         prop_assert!(!changed || accepted, "a change without a 200");
         if let Some(response) = &response {
-            if response.status != 200 || !changed {
-                prop_assert_eq!(backend.applied.get(), 0);
+            // A refused request saves nothing; an accepted one saves only
+            // a change of the settings, or a password.
+            let password = stream.windows(13).any(|w| w == b"/api/password");
+            if response.status != 200 || !changed && !password {
+                prop_assert_eq!(saved(http), 0);
             }
             if response.header("content-type") == Some("application/json") {
                 response.json();
@@ -649,7 +659,7 @@ proptest! {
 }
 
 /// `POST /api/firmware` (feature `update`): the file streamed to the
-/// backend, within its capacity, from those who may change the device.
+/// updater, within its capacity, from those who may change the device.
 #[cfg(feature = "update")]
 mod firmware {
     use super::*;
@@ -692,7 +702,7 @@ mod firmware {
         use crate::device::{BootState, FirmwareStatus};
         let clock = Clock::take();
         let http = api();
-        let device = http.backend().server().service();
+        let device = http.control().server().service();
         assert_eq!(get(http, &clock, "/api/status").json()["update"], serde_json::Value::Null, "not set yet");
         // What the board sets at boot, then when it confirms.
         let previous = Some(crate::io::Version { major: 0, minor: 1, patch: 7 });
@@ -708,7 +718,7 @@ mod firmware {
     }
 
     #[test]
-    fn a_file_is_streamed_whole_to_the_backend_then_the_device_reboots() {
+    fn a_file_is_streamed_whole_to_the_updater_then_the_device_reboots() {
         let clock = Clock::take();
         let http = api();
         let file = file(TEST_FIRMWARE_CAPACITY);
@@ -719,11 +729,11 @@ mod firmware {
         let version = format!("{major}.{minor}.{patch}");
         assert_eq!(response.json(), json!({"firmware": {"version": version, "rebooting": true}}));
         assert_eq!(result, Ok(Some(Action::Reboot)));
-        let backend = http.backend();
-        assert!(*backend.firmware.borrow() == file, "every byte, in order");
-        let chunks = backend.firmware_chunks.borrow().clone();
+        let control = http.control();
+        assert!(*control.platform().firmware.borrow() == file, "every byte, in order");
+        let chunks = control.platform().firmware_chunks.borrow().clone();
         assert!(chunks.iter().rev().skip(1).all(|&len| len == CHUNK_LEN), "whole chunks but the last: {chunks:?}");
-        assert_eq!(backend.reboots.get(), 0, "the reboot is the caller's, after the connection closed");
+        assert_eq!(control.platform().reboots.get(), 0, "the reboot is the caller's, after the connection closed");
         // A second connection, in reads of every small size: the same file.
         for size in [1, 5, 700] {
             let mut connection = Connection::open(http, Some(CLIENT));
@@ -731,7 +741,7 @@ mod firmware {
             connection.wire.send(&upload("", &file[..1000]));
             assert!(connection.poll(), "size {size}");
             assert_eq!(connection.result, Some(Ok(Some(Action::Reboot))));
-            assert!(*backend.firmware.borrow() == file[..1000]);
+            assert!(*control.platform().firmware.borrow() == file[..1000]);
         }
     }
 
@@ -747,15 +757,15 @@ mod firmware {
         assert_eq!(response.status, 413);
         assert_eq!(response.json(), json!({"errors": {"firmware": format!("over {TEST_FIRMWARE_CAPACITY} bytes")}}));
         assert_eq!(connection.result, Some(Ok(None)));
-        assert!(http.backend().firmware_chunks.borrow().is_empty());
+        assert!(http.control().platform().firmware_chunks.borrow().is_empty());
     }
 
     #[test]
     fn only_those_who_may_change_the_device_update_it() {
         let clock = Clock::take();
         let http = api();
-        let backend = http.backend();
-        *backend.password.borrow_mut() = Some(b"s3cret-pass".to_vec());
+        let control = http.control();
+        embassy_futures::block_on(control.set_password(b"s3cret-pass")).unwrap();
         let file = file(100);
         let (response, result) = exchange(http, &clock, Some(CLIENT), &upload("", &file));
         assert_eq!((response.unwrap().status, result), (401, Ok(None)));
@@ -763,7 +773,7 @@ mod firmware {
         assert_eq!(response.unwrap().status, 401);
         let (response, _) = exchange(http, &clock, None, &upload(&basic("s3cret-pass"), &file));
         assert_eq!(response.unwrap().status, 403, "not IPv4: never");
-        assert!(backend.firmware_chunks.borrow().is_empty(), "nothing reached the backend");
+        assert!(control.platform().firmware_chunks.borrow().is_empty(), "nothing reached the updater");
         let (response, result) = exchange(http, &clock, Some(CLIENT), &upload(&basic("s3cret-pass"), &file));
         assert_eq!((response.unwrap().status, result), (202, Ok(Some(Action::Reboot))));
         for method in ["GET", "PUT"] {
@@ -775,25 +785,28 @@ mod firmware {
     fn a_device_that_takes_no_updates_says_so() {
         let clock = Clock::take();
         let http = api();
-        http.backend().firmware_capacity.set(0);
+        http.control().platform().firmware_capacity.set(0);
         let (response, result) = exchange(http, &clock, Some(CLIENT), &upload("", &file(10)));
         let response = response.unwrap();
         assert_eq!((response.status, result), (501, Ok(None)));
         assert_eq!(response.json(), json!({"errors": {"firmware": "this device takes no updates"}}));
-        assert!(http.backend().firmware_chunks.borrow().is_empty());
+        assert!(http.control().platform().firmware_chunks.borrow().is_empty());
     }
 
     #[test]
     fn a_refused_or_cut_off_file_changes_nothing() {
         let clock = Clock::take();
         let http = api();
-        let backend = http.backend();
-        backend.firmware_refusal.set(Some(FirmwareRefusal::Invalid("the signature does not match")));
+        let control = http.control();
+        control
+            .platform()
+            .firmware_refusal
+            .set(Some(crate::update::Error::Signature(crate::update::SignatureError::Mismatch)));
         let (response, result) = exchange(http, &clock, Some(CLIENT), &upload("", &file(3000)));
         let response = response.unwrap();
         assert_eq!((response.status, result), (400, Ok(None)));
-        assert_eq!(response.json(), json!({"errors": {"firmware": "the signature does not match"}}));
-        backend.firmware_refusal.set(Some(FirmwareRefusal::Storage));
+        assert_eq!(response.json(), json!({"errors": {"firmware": "the image's signature is not valid"}}));
+        control.platform().firmware_refusal.set(Some(crate::update::Error::Config));
         let (response, result) = exchange(http, &clock, Some(CLIENT), &upload("", &file(10)));
         assert_eq!((response.unwrap().status, result), (500, Ok(None)));
         // Cut off: the connection closes before the whole file came.
@@ -804,6 +817,6 @@ mod firmware {
         connection.wire.close();
         assert!(connection.poll());
         assert_eq!(connection.result, Some(Err(Error::BadRequest)));
-        assert_eq!(backend.reboots.get(), 0);
+        assert_eq!(control.platform().reboots.get(), 0);
     }
 }

@@ -41,6 +41,8 @@ pub enum FlashError {
         /// The first byte that would change so.
         offset: u32,
     },
+    /// The flash is worn out ([`Wearing`]): it takes no write or erase.
+    Worn,
 }
 
 impl fmt::Display for FlashError {
@@ -49,6 +51,7 @@ impl fmt::Display for FlashError {
             Self::OutOfBounds => f.write_str("outside the flash"),
             Self::NotAligned => f.write_str("not aligned to the write size or the page size"),
             Self::SetsBit { offset } => write!(f, "a write would set a cleared bit at offset {offset}"),
+            Self::Worn => f.write_str("the flash is worn out"),
         }
     }
 }
@@ -60,7 +63,7 @@ impl nor::NorFlashError for FlashError {
         match self {
             Self::OutOfBounds => nor::NorFlashErrorKind::OutOfBounds,
             Self::NotAligned => nor::NorFlashErrorKind::NotAligned,
-            Self::SetsBit { .. } => nor::NorFlashErrorKind::Other,
+            Self::SetsBit { .. } | Self::Worn => nor::NorFlashErrorKind::Other,
         }
     }
 }
@@ -221,6 +224,58 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> nor_async::NorFlash for R
 impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> nor_async::MultiwriteNorFlash
     for RuleFlash<'_, WRITE_SIZE, ERASE_SIZE>
 {
+}
+
+/// A [`RuleFlash`] that wears out on demand: while its flag is set, every
+/// write and erase fails ([`FlashError::Worn`]) and changes nothing, as a
+/// worn-out flash's would. What the tests and the fuzz targets make a
+/// failed save with.
+#[derive(Debug)]
+pub struct Wearing<'a, const WRITE_SIZE: usize, const ERASE_SIZE: usize> {
+    flash: RuleFlash<'a, WRITE_SIZE, ERASE_SIZE>,
+    worn: &'a core::cell::Cell<bool>,
+}
+
+impl<'a, const WRITE_SIZE: usize, const ERASE_SIZE: usize> Wearing<'a, WRITE_SIZE, ERASE_SIZE> {
+    /// `flash`, worn out while `worn` is set.
+    pub const fn new(flash: RuleFlash<'a, WRITE_SIZE, ERASE_SIZE>, worn: &'a core::cell::Cell<bool>) -> Self {
+        Self { flash, worn }
+    }
+
+    fn usable(&self) -> Result<(), FlashError> {
+        if self.worn.get() { Err(FlashError::Worn) } else { Ok(()) }
+    }
+}
+
+impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> nor::ErrorType for Wearing<'_, WRITE_SIZE, ERASE_SIZE> {
+    type Error = FlashError;
+}
+
+impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> nor_async::ReadNorFlash for Wearing<'_, WRITE_SIZE, ERASE_SIZE> {
+    const READ_SIZE: usize = 1;
+
+    async fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), FlashError> {
+        self.flash.read_bytes(offset, bytes)
+    }
+
+    fn capacity(&self) -> usize {
+        self.flash.capacity()
+    }
+}
+
+impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> nor_async::NorFlash for Wearing<'_, WRITE_SIZE, ERASE_SIZE> {
+    const WRITE_SIZE: usize = WRITE_SIZE;
+    const ERASE_SIZE: usize = ERASE_SIZE;
+
+    async fn erase(&mut self, from: u32, to: u32) -> Result<(), FlashError> {
+        self.usable()?;
+        self.flash.erase_pages(from, to)
+    }
+
+    async fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), FlashError> {
+        self.usable()?;
+        self.flash.write_bytes(offset, bytes)
+    }
 }
 
 #[cfg(test)]

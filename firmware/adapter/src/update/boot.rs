@@ -1,6 +1,6 @@
 //! What a board with `update` does with its [`Updater`], the same on
 //! every board (docs/update.md): a [`BoardUpdate`] holds it, made once at
-//! start, for the upload ([`BoardUpdate::updater`]) and for the
+//! start, for the upload ([`BoardUpdate::receive`]) and for the
 //! confirmation ([`BoardUpdate::confirm_when_serving`]: read the boot state
 //! and the other image's version, report them on the [`Device`], and
 //! confirm an image on trial once it serves); its [`Trial`] flag is what
@@ -17,6 +17,29 @@ use embedded_storage_async::nor_flash::NorFlash;
 
 use super::{BootState, Config, FirmwareStatus, ImageLayout, Updater};
 use crate::device::Device;
+
+/// Where an upload's bytes come from: its chunks in order, then `None`
+/// (the HTTP API's request body, a test's bytes).
+#[allow(async_fn_in_trait, reason = "the executor is single-threaded: no future needs to be Send")]
+pub trait Source {
+    /// Why the bytes stopped coming.
+    type Error;
+    /// The next chunk; `None` at the end of the upload.
+    async fn chunk(&mut self) -> Result<Option<&[u8]>, Self::Error>;
+}
+
+/// Why an upload was not taken; nothing was armed, the running image stays.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Refused<E> {
+    /// The updater refused the file (not one for this device, a bad
+    /// signature, cut off) or its flash failed.
+    Update(super::Error),
+    /// The source failed before the file came whole.
+    Source(E),
+    /// This device takes no updates: no updater.
+    Unsupported,
+}
 
 /// How long an image on trial has to confirm itself, from its start
 /// (DEVICE.md section 5): after that the board's watchdog resets it.
@@ -114,10 +137,19 @@ impl<M: RawMutex, DFU: NorFlash, STATE: NorFlash> BoardUpdate<M, DFU, STATE> {
         &self.trial
     }
 
-    /// The updater, once [`Self::install`] made it: what an upload feeds
-    /// (the HTTP API's `receive_update`).
-    pub fn updater(&self) -> Option<&Mutex<M, Updater<'static, DFU, STATE>>> {
-        self.updater.try_get()
+    /// Takes an upload from `source` into the updater ([`Updater::receive`]):
+    /// what the board's `Platform::receive_firmware` does. Unsupported
+    /// without an updater.
+    pub async fn receive<S: Source>(&self, source: &mut S) -> Result<crate::io::Version, Refused<S::Error>> {
+        let Some(updater) = self.updater.try_get() else { return Err(Refused::Unsupported) };
+        let received = updater.lock().await.receive(source).await;
+        match &received {
+            Ok(_version) => info!("update: {:?} received and armed; rebooting into it", _version),
+            Err(Refused::Update(_error)) => warn!("update: refused: {:?}", _error),
+            Err(Refused::Source(_)) => warn!("update: the upload broke off"),
+            Err(Refused::Unsupported) => {}
+        }
+        received
     }
 
     /// Reads the boot state and the other image's version (by `layout`),

@@ -381,6 +381,34 @@ impl<'d, DFU: NorFlash, STATE: NorFlash> Updater<'d, DFU, STATE> {
         finished
     }
 
+    /// Takes a whole upload from `source` (begin, each chunk, finish): the
+    /// version of the image it armed. On any error the upload is dropped
+    /// and nothing is armed.
+    pub async fn receive<S: boot::Source>(
+        &mut self,
+        source: &mut S,
+    ) -> Result<crate::io::Version, boot::Refused<S::Error>> {
+        self.begin().await.map_err(boot::Refused::Update)?;
+        loop {
+            match source.chunk().await {
+                Ok(Some(chunk)) => {
+                    if let Err(error) = self.write(chunk).await {
+                        self.abort();
+                        return Err(boot::Refused::Update(error));
+                    }
+                }
+                Ok(None) => break,
+                Err(error) => {
+                    self.abort();
+                    return Err(boot::Refused::Source(error));
+                }
+            }
+        }
+        let accepted = self.finish().await.map_err(boot::Refused::Update)?;
+        let Version { major, minor, patch } = accepted.version;
+        Ok(crate::io::Version { major, minor, patch })
+    }
+
     async fn take(&mut self, mut chunk: &[u8]) -> Result<Progress, Error> {
         loop {
             match self.upload {
