@@ -1,5 +1,5 @@
 //! The mDNS responder: arbitrary bytes as a query, answered as the device
-//! (`adapter::mdns::responder`), the response read back by an independent
+//! (`mdns::responder`), the response read back by an independent
 //! DNS parser (simple-dns).
 //!
 //! The input ([`MdnsInput`]):
@@ -27,10 +27,9 @@
 //!   first alone, for a legacy query) asks a type of one of its names, by
 //!   a model written here from the records' table.
 
-use adapter::io::Version;
 use adapter::mdns::responder::{self, emit, plan, response_len};
 use adapter::mdns::wire::Message;
-use adapter::mdns::{Identity, MAX_RESPONSE_LEN, Services};
+use adapter::mdns::{HostName, Identity, MAX_RESPONSE_LEN, Services};
 use adapter::settings::Name;
 use simple_dns::rdata::RData;
 use simple_dns::{OPCODE, Packet, PacketFlag};
@@ -68,11 +67,11 @@ impl<'a> MdnsInput<'a> {
         let name = NAMES[..len].trim_end_matches('-');
         let name = if name.is_empty() { "m" } else { name };
         Identity {
-            name: Name::parse(name).expect("a valid name"),
+            name: HostName::new(Name::parse(name).expect("a valid name").as_bytes()),
             address: [198, 18, 0, 2],
             services: Services {
                 model: "fuzz-board",
-                version: Version { major: 1, minor: 22, patch: 333 },
+                version: "1.22.333",
                 modbus_port: 502,
                 http_port: (self.flags & MDNS_NO_HTTP == 0).then_some(8080),
             },

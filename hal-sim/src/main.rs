@@ -20,6 +20,7 @@ use adapter::device::{self, Device};
 use adapter::http::{self, Http, MAX_HTTP_CONNECTIONS};
 use adapter::link::{self as robot_link, Gated, Link};
 use adapter::mdns;
+use adapter::net::DeviceName;
 use adapter::server::{self, SOCKET_POOL, Server, SlotId};
 use adapter::settings::Settings;
 use adapter::storage::Store;
@@ -226,7 +227,7 @@ fn start(
     spawner.spawn(platform::reboot_task(args)?);
     let services = mdns::Services {
         model: MODEL,
-        version: adapter::VERSION,
+        version: adapter::VERSION_TEXT,
         modbus_port: server.config().port,
         http_port: options.http_port,
     };
@@ -254,7 +255,7 @@ async fn http_task(stack: Stack<'static>, api: &'static Api) -> ! {
 
 /// Answers mDNS queries for the name in force and the services (DEVICE.md section 3).
 #[embassy_executor::task]
-async fn mdns_task(stack: Stack<'static>, names: &'static SimController, services: mdns::Services) -> ! {
+async fn mdns_task(stack: Stack<'static>, names: &'static dyn DeviceName, services: mdns::Services) -> ! {
     mdns::run(stack, names, services).await
 }
 

@@ -13,7 +13,7 @@
 //!   factory reset, over a small board seam; every front end calls it.
 //! - `http` (feature `http`): the HTTP JSON API, a front end of the settings service.
 //! - `link` (feature `robot-link`): the robot link, a client of the robot controller's own Modbus TCP server.
-//! - `mdns` (feature `mdns`): the mDNS responder: `NAME.local` and the device's services.
+//! - `mdns` (feature `mdns`, the `mdns` crate): the mDNS responder: `NAME.local` and the device's services.
 //! - `update` (feature `update`): firmware update: a signed image streamed into
 //!   the DFU partition, checked, and the bootloader's swap armed; confirmation.
 //!
@@ -34,8 +34,6 @@ pub mod http;
 pub mod link;
 pub mod load;
 pub mod map;
-#[cfg(feature = "mdns")]
-pub mod mdns;
 pub mod name;
 pub mod net;
 pub mod program;
@@ -48,6 +46,10 @@ pub mod update;
 
 /// The wire codec this core speaks (its own crate: no map, no async).
 pub use modbus;
+
+/// The mDNS responder (its own crate; feature `mdns`).
+#[cfg(feature = "mdns")]
+pub use mdns;
 
 /// The hardware seam a board implements (its own crate, as
 /// embassy-net-driver is the network's).

@@ -37,6 +37,18 @@ impl DeviceName for Name {
     }
 }
 
+/// The name in force, as the mDNS responder announces it (`NAME.local`).
+#[cfg(feature = "mdns")]
+impl mdns::NameSource for dyn DeviceName + '_ {
+    fn host_name(&self) -> mdns::HostName {
+        mdns::HostName::new(self.device_name().as_bytes())
+    }
+}
+
+// Every device name is a host name as it is.
+#[cfg(feature = "mdns")]
+const _: () = assert!(crate::name::MAX_NAME_LEN <= mdns::MAX_NAME_LEN);
+
 /// DHCP, sending `name` as the hostname (option 12).
 pub fn dhcp_config(name: &Name) -> DhcpConfig {
     let mut config = DhcpConfig::default();

@@ -29,5 +29,5 @@ pub fn mdns_services(model: &'static str, modbus_port: u16) -> crate::mdns::Serv
     let http_port = Some(crate::http::HTTP_PORT);
     #[cfg(not(feature = "http"))]
     let http_port = None;
-    crate::mdns::Services { model, version: crate::VERSION, modbus_port, http_port }
+    crate::mdns::Services { model, version: crate::VERSION_TEXT, modbus_port, http_port }
 }

@@ -16,8 +16,7 @@
 //! carry the cache-flush bit; the PTRs are shared.
 
 use super::wire::{self, Message, Name, Writer, class, flags, rtype};
-use crate::io::Version;
-use crate::settings;
+use crate::HostName;
 
 /// TTL of the records tied to the host: A, NSEC, SRV (RFC 6762 section 10).
 pub const HOST_TTL_S: u32 = 120;
@@ -65,8 +64,8 @@ impl Service {
 pub struct Services {
     /// The board, in TXT `model=` (cut to [`MAX_MODEL_LEN`]).
     pub model: &'static str,
-    /// The firmware version, in TXT `version=`.
-    pub version: Version,
+    /// The firmware version, in TXT `version=` (`0.1.0`).
+    pub version: &'static str,
     pub modbus_port: u16,
     /// `None`: no HTTP, and no `_http._tcp`.
     pub http_port: Option<u16>,
@@ -85,7 +84,7 @@ impl Services {
 /// Everything a response says: the name, the address and the services.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Identity {
-    pub name: settings::Name,
+    pub name: HostName,
     pub address: [u8; 4],
     pub services: Services,
 }
@@ -303,14 +302,14 @@ impl Domain {
         }
     }
 
-    fn label(self, name: &settings::Name) -> &[u8] {
+    fn label(self, name: &HostName) -> &[u8] {
         match self {
             Self::Local => b"local",
             Self::Tcp => b"_tcp",
             Self::Udp => b"_udp",
             Self::DnsSd => b"_dns-sd",
             Self::ServiceTypes => b"_services",
-            Self::Host | Self::Instance(_) => name.as_str().as_bytes(),
+            Self::Host | Self::Instance(_) => name.as_bytes(),
             Self::Type(s) => s.label(),
         }
     }
@@ -328,7 +327,7 @@ impl Domain {
 
     /// Which of the device's names `name` is, if any (ASCII case ignored).
     fn of(name: &Name<'_>, identity: &Identity) -> Option<Self> {
-        let own = identity.name.as_str().as_bytes();
+        let own = identity.name.as_bytes();
         if name.is(&[own, b"local"]) {
             return Some(Self::Host);
         }
@@ -526,14 +525,12 @@ impl Emitter<'_, '_> {
     /// TXT: `name=`, `model=` and `version=` (RFC 6763 section 6).
     fn text(&mut self) {
         let identity = self.identity;
-        let name = identity.name.as_str().as_bytes();
+        let name = identity.name.as_bytes();
         let model = identity.services.model.as_bytes();
         let model = model.get(..MAX_MODEL_LEN).unwrap_or(model);
         self.string(&[b"name=", name]);
         self.string(&[b"model=", model]);
-        let Version { major, minor, patch } = identity.services.version;
-        let (mut a, mut b, mut c) = ([0; 5], [0; 5], [0; 5]);
-        self.string(&[b"version=", decimal(major, &mut a), b".", decimal(minor, &mut b), b".", decimal(patch, &mut c)]);
+        self.string(&[b"version=", identity.services.version.as_bytes()]);
     }
 
     /// One character string: a length byte, then `parts` (at most 255 bytes in all).
@@ -547,20 +544,4 @@ impl Emitter<'_, '_> {
             left -= part.len();
         }
     }
-}
-
-/// `value` in decimal, in `buffer`.
-fn decimal(mut value: u16, buffer: &mut [u8; 5]) -> &[u8] {
-    let mut start = buffer.len();
-    loop {
-        start -= 1;
-        if let Some(digit) = buffer.get_mut(start) {
-            *digit = b'0' + (value % 10) as u8;
-        }
-        value /= 10;
-        if value == 0 || start == 0 {
-            break;
-        }
-    }
-    buffer.get(start..).unwrap_or_default()
 }

@@ -9,7 +9,7 @@ use embassy_time::{Duration, Instant, Timer, with_deadline};
 
 use super::responder::{self, Identity, Plan, Record, Services};
 use super::{GROUP, PORT};
-use crate::net::DeviceName;
+use crate::NameSource;
 
 /// Receive buffer: queries of up to 512 bytes, DNS's classic message size
 /// (RFC 1035 section 4.2.1). A larger datagram is dropped by the stack: a
@@ -148,15 +148,16 @@ impl State {
     }
 }
 
-/// The identity now: `None` without an address.
-fn identity<N: DeviceName + ?Sized>(stack: Stack<'_>, names: &N, services: Services) -> Option<Identity> {
+/// The identity now: `None` without an address or a name.
+fn identity<N: NameSource + ?Sized>(stack: Stack<'_>, names: &N, services: Services) -> Option<Identity> {
     let address = stack.config_v4()?.address.address().octets();
-    Some(Identity { name: names.device_name(), address, services })
+    let name = names.host_name();
+    (!name.as_bytes().is_empty()).then_some(Identity { name, address, services })
 }
 
 /// Answers queries for the device's name and services on `stack`, and
 /// announces them, forever.
-pub async fn run<N: DeviceName + ?Sized>(stack: Stack<'_>, names: &N, services: Services) -> ! {
+pub async fn run<N: NameSource + ?Sized>(stack: Stack<'_>, names: &N, services: Services) -> ! {
     let mut rx_meta = [PacketMetadata::EMPTY; RX_PACKETS];
     let mut rx = [0u8; SOCKET_RX_LEN];
     let mut tx_meta = [PacketMetadata::EMPTY; TX_PACKETS];
@@ -179,7 +180,7 @@ pub async fn run<N: DeviceName + ?Sized>(stack: Stack<'_>, names: &N, services: 
             send(&mut socket, &goodbye).await;
         }
         if let Some(announcement) = state.announcement(now) {
-            info!("mdns: announcing {}.local", announcement.identity.name.as_str());
+            info!("mdns: announcing {}.local", announcement.identity.name);
             send(&mut socket, &announcement).await;
         }
         let deadline = state.deadline(Instant::now());

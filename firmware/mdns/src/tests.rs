@@ -10,19 +10,13 @@ use simple_dns::rdata::RData;
 use super::responder::{Domain, Legacy, Record, Records, emit, plan, response_len};
 use super::wire::{Error, Message, Name};
 use super::*;
-use crate::settings;
 
 /// hal-sim's identity: MAC 02:4d:42:53:49:4d, at 198.18.0.2, HTTP on.
 fn identity() -> Identity {
     Identity {
-        name: settings::Name::from_mac([2, 0x4d, 0x42, 0x53, 0x49, 0x4d]),
+        name: HostName::new(b"mbio-53494d"),
         address: [198, 18, 0, 2],
-        services: Services {
-            model: "hal-sim",
-            version: crate::io::Version { major: 0, minor: 1, patch: 0 },
-            modbus_port: 502,
-            http_port: Some(80),
-        },
+        services: Services { model: "hal-sim", version: "0.1.0", modbus_port: 502, http_port: Some(80) },
     }
 }
 
@@ -199,7 +193,7 @@ fn a_legacy_query_gets_its_id_and_question_back_and_short_ttls_by_unicast() {
 fn names_match_without_regard_to_case_and_others_get_nothing() {
     assert!(respond(&hex(fixture::LEGACY), false, &identity()).is_some(), "MBIO-53494D.local");
     let mut other = identity();
-    other.name = settings::Name::parse("press-7").unwrap();
+    other.name = HostName::new(b"press-7");
     for query in [browse(), hex(fixture::TYPES)] {
         assert!(respond(&query, false, &other).is_some(), "not about the name");
     }
@@ -248,9 +242,9 @@ fn an_announcement_has_every_record_and_a_goodbye_the_named_ones_at_ttl_0() {
 #[test]
 fn the_largest_response_fits_max_response_len() {
     let mut identity = identity();
-    identity.name = settings::Name::parse(&"z".repeat(settings::MAX_NAME_LEN)).unwrap();
+    identity.name = HostName::new("z".repeat(MAX_NAME_LEN).as_bytes());
     identity.services.model = "a-model-name-that-is-longer-than-any-board-has";
-    identity.services.version = crate::io::Version { major: 65535, minor: 65535, patch: 65535 };
+    identity.services.version = "65535.65535.65535";
     let every = Records::all(&identity);
     let mut plans = vec![Plan::announcement(&identity)];
     for owner in [Domain::Host, Domain::Instance(Service::Http)] {
@@ -378,7 +372,7 @@ fn the_state_announces_twice_answers_and_says_goodbye_on_a_rename() {
 
     // A rename: a goodbye for the old name, then two announcements of the new.
     let mut renamed = identity;
-    renamed.name = settings::Name::parse("press-7").unwrap();
+    renamed.name = HostName::new(b"press-7");
     let t2 = t1 + Duration::from_secs(10);
     let goodbye = state.follow(Some(renamed), t2).unwrap();
     assert_eq!((goodbye.identity, goodbye.plan), (identity, Plan::goodbye(&identity)));
@@ -393,7 +387,7 @@ fn the_state_announces_twice_answers_and_says_goodbye_on_a_rename() {
 #[test]
 fn versions_are_written_in_decimal() {
     let mut identity = identity();
-    identity.services.version = crate::io::Version { major: 10, minor: 0, patch: 7 };
+    identity.services.version = "10.0.7";
     let bytes = response(&Plan::announcement(&identity), &identity);
     assert!(bytes.windows(15).any(|w| w == b"\x0eversion=10.0.7"), "{bytes:02x?}");
 }
