@@ -17,7 +17,7 @@ use adapter::map::table::{DIGITAL_PINS, TOOL_PINS};
 use embassy_executor::Spawner;
 use sim_robot::Event;
 
-use crate::platform::SimController;
+use crate::Control as SimController;
 use crate::runtime;
 use crate::sim::Board;
 

@@ -16,36 +16,26 @@ use std::io::Write as _;
 use std::os::unix::net::UnixListener;
 use std::process::ExitCode;
 
-use adapter::device::{self, Device};
-use adapter::http::{self, Http, MAX_HTTP_CONNECTIONS};
-use adapter::link::{self as robot_link, Gated, Link};
-use adapter::mdns;
-use adapter::net::DeviceName;
-use adapter::server::{self, SOCKET_POOL, Server, SlotId};
 use adapter::settings::Settings;
 use adapter::storage::Store;
 use embassy_executor::Spawner;
-use embassy_net::{Runner, Stack, StackResources};
+use embassy_net::{Runner, Stack};
 use sim_robot::SimRobot;
 
 use crate::cli::{Action, Options};
-use crate::platform::{SimController, SimPlatform};
+use crate::platform::SimPlatform;
 use crate::runtime::Executor;
-use crate::sim::{Board, OutputLatch};
+use crate::sim::{Board as SimBoard, OutputLatch, PinReader, RobotReader};
 use crate::state::Flash;
 use crate::tap::TunTapDevice;
 
-/// The Modbus server over the simulated device.
-type ModbusServer = Server<'static, Device<'static>>;
-/// The HTTP API over hal-sim's backend.
-type Api = Http<'static, crate::state::Flash, SimPlatform>;
-
-/// Sockets in the stack: the Modbus listeners, DHCP's, the HTTP listeners, mDNS's and the robot link's.
-const NET_SOCKETS: usize = adapter::program::STACK_SOCKETS;
-
-/// The robot link (`--robot-link`, `robot.link`): the source of the robot's
-/// points while it is set; the simulated robot's otherwise.
-pub(crate) static ROBOT_LINK: Link = Link::new();
+adapter::program! {
+    driver: TunTapDevice,
+    inputs: PinReader<'static>,
+    robot: RobotReader<'static>,
+    flash: Flash,
+    platform: SimPlatform,
+}
 
 /// Exit status for a command line hal-sim cannot run with.
 const EXIT_USAGE: u8 = 2;
@@ -132,26 +122,23 @@ fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>, fl
     }
     // Saves from now on run in the executor and take the flash's time.
     store.flash().start_timing();
-    let settings: &'static Settings = Box::leak(Box::new(running_settings(&loaded.settings, &options)));
-
-    ROBOT_LINK.configure(&settings.robot);
-    let name = settings.device.name.or_default(MAC);
-    let net_config = adapter::net::initial_config(&settings.network, &name);
-    let resources = Box::leak(Box::new(StackResources::<NET_SOCKETS>::new()));
-    let (stack, runner) = embassy_net::new(device, net_config, resources, RandomState::new().build_hasher().finish());
-
+    let settings = running_settings(&loaded.settings, &options);
+    let (stack, runner, settings) = program::network(device, settings, MAC, RandomState::new().build_hasher().finish());
     let outputs: &'static OutputLatch = Box::leak(Box::new(OutputLatch::new()));
-    let device: &'static Device<'static> = Box::leak(Box::new(Device::new(settings.watchdog(), MODEL, outputs)));
-    device.drive_outputs();
-    let server: &'static ModbusServer = Box::leak(Box::new(Server::new(settings.server_config(MAC), device)));
-    let board: &'static Board = Box::leak(Box::new(Board::new(device, outputs, SimRobot::new(options.robot))));
-    // No API (`--http-port 0`): no port for `modbus.port` to avoid (0 is never a Modbus port).
-    let platform = SimPlatform::new(stack, settings.network.mode);
-    let controller = SimController::new(server, platform, store, &loaded).with_robot_link(&ROBOT_LINK);
-    let controller: &'static SimController = Box::leak(Box::new(controller));
-    let api: &'static Api = Box::leak(Box::new(Http::new(controller, options.http_port.unwrap_or(0))));
+    let program = program::build(Board {
+        stack,
+        settings,
+        mac: MAC,
+        model: MODEL,
+        outputs,
+        store,
+        loaded,
+        platform: SimPlatform::new(stack, settings.network.mode),
+        http_port: options.http_port,
+    });
+    let board: &'static SimBoard =
+        Box::leak(Box::new(SimBoard::new(program.device, outputs, SimRobot::new(options.robot))));
     let options: &'static Options = Box::leak(Box::new(options));
-    let sim = Sim { stack, board, server, controller, api, settings, options };
 
     if options.busy_poll_us > 0 {
         log::info!("busy polling: up to {} µs before each sleep", options.busy_poll_us);
@@ -165,7 +152,7 @@ fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>, fl
         }
     };
     executor.run(|spawner| {
-        if let Err(e) = start(spawner, sim, runner, control, args) {
+        if let Err(e) = start(spawner, program, board, runner, control, args, options) {
             eprintln!("hal-sim: cannot start its tasks: {e:?}");
             std::process::exit(i32::from(EXIT_UNAVAILABLE));
         }
@@ -188,100 +175,25 @@ fn running_settings(loaded: &Settings, options: &Options) -> Settings {
     settings
 }
 
-/// What the tasks share, all of it for the life of the process.
-#[derive(Clone, Copy)]
-struct Sim {
-    stack: Stack<'static>,
-    board: &'static Board,
-    server: &'static ModbusServer,
-    controller: &'static SimController,
-    api: &'static Api,
-    /// The settings in force at start (the loaded ones).
-    settings: &'static Settings,
-    options: &'static Options,
-}
-
+/// Spawns the program's tasks over the simulated board, then hal-sim's own:
+/// the control socket, the reboot, the line that says it is ready.
 fn start(
     spawner: Spawner,
-    sim: Sim,
+    program: Program,
+    board: &'static SimBoard,
     runner: Runner<'static, TunTapDevice>,
     control: Option<UnixListener>,
     args: Vec<OsString>,
+    options: &'static Options,
 ) -> Result<(), embassy_executor::SpawnError> {
-    let Sim { stack, board, server, controller, api, settings, options } = sim;
-    spawner.spawn(net_task(runner)?);
-    spawner.spawn(link_task(stack, server, settings, controller)?);
-    spawner.spawn(refresh_task(board)?);
-    spawner.spawn(robot_link_task(stack, board.device)?);
-    for slot in 0..SOCKET_POOL {
-        spawner.spawn(modbus_task(stack, server, slot)?);
-    }
-    if options.http_port.is_some() {
-        for _ in 0..MAX_HTTP_CONNECTIONS {
-            spawner.spawn(http_task(stack, api)?);
-        }
-    }
+    let (pins, robot) = board.sources();
+    program::spawn(spawner, program, runner, pins, robot)?;
     if let Some(listener) = control {
-        spawner.spawn(control::accept_task(spawner, listener, board, controller)?);
+        spawner.spawn(control::accept_task(spawner, listener, board, program.control)?);
     }
     spawner.spawn(platform::reboot_task(args)?);
-    let services = mdns::Services {
-        model: MODEL,
-        version: adapter::VERSION_TEXT,
-        modbus_port: server.config().port,
-        http_port: options.http_port,
-    };
-    spawner.spawn(mdns_task(stack, controller, services)?);
-    spawner.spawn(ready_task(stack, server, options)?);
+    spawner.spawn(ready_task(program.stack, program.server, options)?);
     Ok(())
-}
-
-#[embassy_executor::task]
-async fn net_task(mut runner: Runner<'static, TunTapDevice>) -> ! {
-    runner.run().await
-}
-
-/// One Modbus listener per socket.
-#[embassy_executor::task(pool_size = SOCKET_POOL)]
-async fn modbus_task(stack: Stack<'static>, server: &'static ModbusServer, slot: SlotId) -> ! {
-    server::listen(stack, server, slot).await
-}
-
-/// One HTTP listener per connection served at once.
-#[embassy_executor::task(pool_size = MAX_HTTP_CONNECTIONS)]
-async fn http_task(stack: Stack<'static>, api: &'static Api) -> ! {
-    http::listen(stack, api).await
-}
-
-/// Answers mDNS queries for the name in force and the services (DEVICE.md section 3).
-#[embassy_executor::task]
-async fn mdns_task(stack: Stack<'static>, names: &'static dyn DeviceName, services: mdns::Services) -> ! {
-    mdns::run(stack, names, services).await
-}
-
-/// Follows the TAP's link with the boards' network policy; DHCP's hostname
-/// is the name in the settings, as the HTTP API changes them.
-#[embassy_executor::task]
-async fn link_task(
-    stack: Stack<'static>,
-    server: &'static ModbusServer,
-    settings: &'static Settings,
-    names: &'static SimController,
-) -> ! {
-    adapter::net::run(stack, &settings.network, server, names).await
-}
-
-/// The refresh: the simulated robot feeds the robot's points only while no link is set.
-#[embassy_executor::task]
-async fn refresh_task(board: &'static Board) -> ! {
-    let (mut pins, robot) = board.sources();
-    device::refresh_loop(board.device, &mut pins, &mut Gated::new(&ROBOT_LINK, robot)).await
-}
-
-/// Polls the robot controller while `robot.link` is set (DEVICE.md section 4).
-#[embassy_executor::task]
-async fn robot_link_task(stack: Stack<'static>, device: &'static Device<'static>) -> ! {
-    robot_link::run(stack, device, &ROBOT_LINK).await
 }
 
 /// Prints the one line that says hal-sim is ready, once the address is up.
@@ -296,7 +208,7 @@ async fn ready_task(stack: Stack<'static>, server: &'static ModbusServer, option
         config.policy.unit_id,
         config.policy.write_policy,
         options.robot,
-        ROBOT_LINK.status().target.map_or_else(|| "none".to_owned(), |link| link.to_string()),
+        ROBOT_LINK.health().target.map_or_else(|| "none".to_owned(), |link| link.to_string()),
     );
     if let Some(path) = &options.control {
         log::info!("control socket at {}", path.display());

@@ -15,17 +15,12 @@ use std::ffi::{CString, OsString};
 use std::io::Read as _;
 use std::os::unix::ffi::OsStrExt as _;
 
-use adapter::control::{Controller, NetworkStatus, Platform, RobotSource};
+use adapter::control::{NetworkStatus, Platform, RobotSource};
 use adapter::settings::NetMode;
 use embassy_net::Stack;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Timer};
-
-use crate::state::Flash;
-
-/// The settings service in hal-sim: the settings store over the state file.
-pub type SimController = Controller<'static, Flash, SimPlatform>;
 
 /// How long a reboot waits for the frames already queued (the response's
 /// last segments, the connection's close) to leave.

@@ -1,4 +1,4 @@
-//! DHCP's hostname (DEVICE.md section 3): hal-sim in `dhcp` mode against a
+//! DHCP's hostname (docs/discovery.md): hal-sim in `dhcp` mode against a
 //! real DHCP server (dnsmasq) on its namespace's TAP, which hands out
 //! 198.18.0.2 alone; its lease file shows the name the device sent.
 

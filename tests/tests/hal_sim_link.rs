@@ -1,4 +1,4 @@
-//! The robot link (DEVICE.md section 4) against independent controllers:
+//! The robot link (docs/robot-link.md) against independent controllers:
 //! pymodbus's server and a plain asyncio one that misbehaves on purpose
 //! (tests/peers/robot_controller.py), and a second hal-sim in demo mode.
 //!

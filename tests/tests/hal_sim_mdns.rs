@@ -1,4 +1,4 @@
-//! mDNS and DNS-SD (DEVICE.md section 3) as an integrator's tools see
+//! mDNS and DNS-SD (docs/discovery.md) as an integrator's tools see
 //! them: python-zeroconf in hal-sim's namespace resolves the name and
 //! browses the services (tests/mdns/zeroconf-client.py).
 

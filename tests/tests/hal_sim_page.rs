@@ -22,7 +22,7 @@ use tokio_modbus::prelude::*;
 
 /// How long a lamp may take to follow an input.
 const LAMP_LIMIT_MS: u64 = 1000;
-/// DEVICE.md section 2: the page as served.
+/// The page as served (docs/http-api.md).
 const MAX_PAGE_LEN: usize = 24 * 1024;
 
 fn ok(reply: Reply) -> Value {

@@ -237,7 +237,7 @@ fn hung_image() -> Vec<u8> {
     image
 }
 
-/// DEVICE.md section 5: an image swapped in that does not confirm itself
+/// docs/update.md: an image swapped in that does not confirm itself
 /// within 30 s is reset by the watchdog the bootloader started, and the
 /// bootloader rolls back; the old image, confirmed, pets the watchdog and
 /// keeps running past the limit.

@@ -1,4 +1,4 @@
-//! Power cuts during firmware updates (DEVICE.md section 5): QEMU killed at
+//! Power cuts during firmware updates (docs/update.md): QEMU killed at
 //! random moments of an upload and of a swap, [`CUTS`] times each, on one
 //! state file that carries on from cut to cut, as a device in the field
 //! would. SIGKILL stops the guest between two instructions and the PSRAM's

@@ -12,7 +12,7 @@
 //! - [`control`]: the settings service: the store, the password, apply,
 //!   factory reset, over a small board seam; every front end calls it.
 //! - `http` (feature `http`): the HTTP JSON API, a front end of the settings service.
-//! - `link` (feature `robot-link`): the robot link, a client of the robot controller's own Modbus TCP server.
+//! - `robot_link` (feature `robot-link`): the robot link, a client of the robot controller's own Modbus TCP server.
 //! - `mdns` (feature `mdns`, the `mdns` crate): the mDNS responder: `NAME.local` and the device's services.
 //! - `update` (feature `update`): firmware update: a signed image streamed into
 //!   the DFU partition, checked, and the bootloader's swap armed; confirmation.
@@ -27,16 +27,16 @@ pub mod fmt;
 pub mod access;
 pub mod analog;
 pub mod control;
+pub mod cpu_load;
 pub mod device;
 #[cfg(feature = "http")]
 pub mod http;
-#[cfg(feature = "robot-link")]
-pub mod link;
-pub mod load;
 pub mod map;
 pub mod name;
 pub mod net;
 pub mod program;
+#[cfg(feature = "robot-link")]
+pub mod robot_link;
 pub mod server;
 pub mod settings;
 pub mod storage;

@@ -236,9 +236,10 @@ impl Robot for NoRobot {
     }
 }
 
-/// A version: the robot controller's (registers 256-258, from the
-/// [`Robot`] source), or this firmware's (the adapter's `VERSION`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// A version, major.minor.patch: the robot controller's (registers
+/// 256-258, from the [`Robot`] source), this firmware's (the adapter's
+/// `VERSION`), or an update file's (update-image's header).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Version {
     pub major: u16,
@@ -256,5 +257,25 @@ impl Version {
     /// Registers 256-258 as the map holds them.
     pub const fn registers(&self) -> [u16; 3] {
         [self.major, self.minor, self.patch]
+    }
+
+    /// Parses `X.Y.Z`, each part a decimal `u16`.
+    pub fn parse(text: &str) -> Option<Self> {
+        let mut parts = text.split('.');
+        let mut next = || -> Option<u16> {
+            let part = parts.next()?;
+            if part.is_empty() || !part.bytes().all(|b| b.is_ascii_digit()) {
+                return None;
+            }
+            part.parse().ok()
+        };
+        let version = Self { major: next()?, minor: next()?, patch: next()? };
+        parts.next().is_none().then_some(version)
+    }
+}
+
+impl core::fmt::Display for Version {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "{}.{}.{}", self.major, self.minor, self.patch)
     }
 }

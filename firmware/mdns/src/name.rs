@@ -52,7 +52,7 @@ impl fmt::Display for HostName {
 #[cfg(feature = "defmt")]
 impl defmt::Format for HostName {
     fn format(&self, f: defmt::Formatter<'_>) {
-        defmt::write!(f, "{=[u8]:a}", self.as_bytes())
+        defmt::write!(f, "{=str}", self.as_str())
     }
 }
 

@@ -12,17 +12,12 @@
 #![no_std]
 #![no_main]
 
-use adapter::device::{self, Device};
-use adapter::net::DeviceName;
-use adapter::server::{self, SOCKET_POOL, Server, SlotId};
-#[cfg(not(feature = "http"))]
-use adapter::settings::Name;
+use adapter::io::NoRobot;
 use adapter::settings::{Cidr, NetMode, NetworkSettings, Settings};
 #[cfg(feature = "http")]
-use adapter::{control::Controller, storage::Store};
+use adapter::storage::Store;
 use defmt_semihosting as _;
 use embassy_executor::Spawner;
-use embassy_net::{Runner, Stack, StackResources};
 use m4_mem as _; // its copy, move and fill routines instead of compiler-builtins' (BENCHMARKS.md)
 mod board;
 #[cfg(feature = "http")]
@@ -34,13 +29,16 @@ mod update;
 #[cfg(feature = "update")]
 mod watchdog;
 
-use adapter::io::NoRobot;
 use board::{Leds, Mmio, RamInputs};
 use lan9118::Lan9118;
-use static_cell::StaticCell;
 
-/// Sockets the stack holds (the Modbus listeners, DHCP's, HTTP's, mDNS's).
-const SOCKETS: usize = adapter::program::STACK_SOCKETS;
+adapter::program! {
+    driver: Lan9118<Mmio>,
+    inputs: RamInputs,
+    robot: NoRobot,
+    flash: platform::SettingsFlash,
+    platform: platform::Mps2,
+}
 
 /// The board, as Read Device Identification (ModelName), `/api/status` and mDNS's TXT name it.
 pub const MODEL: &str = "mps2-an386";
@@ -62,21 +60,7 @@ pub const SETTINGS: Settings = Settings {
 #[cfg(feature = "http")]
 const _: () = assert!(SETTINGS.modbus.port != adapter::http::HTTP_PORT, "MODBUS_PORT must not be the HTTP port");
 
-/// The Modbus server over the device.
-type ModbusServer = Server<'static, Device<'static>>;
-
-/// The settings service: the settings, the store and the password over this board.
-#[cfg(feature = "http")]
-type Control = Controller<'static, platform::SettingsFlash, platform::Mps2>;
-/// The HTTP API over it.
-#[cfg(feature = "http")]
-type Api = adapter::http::Http<'static, platform::SettingsFlash, platform::Mps2>;
-
 static LEDS: Leds = Leds;
-
-/// The robot link (`robot-link`): the source of the robot's points while `robot.link` is set.
-#[cfg(feature = "robot-link")]
-static ROBOT_LINK: adapter::link::Link = adapter::link::Link::new();
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
@@ -104,59 +88,32 @@ fn main() -> ! {
     #[cfg(feature = "http")]
     let (store, loaded) = load_settings();
     #[cfg(feature = "http")]
-    let settings: &'static Settings = {
-        static IN_FORCE: StaticCell<Settings> = StaticCell::new();
-        IN_FORCE.init(loaded.settings)
-    };
+    let settings = loaded.settings;
     #[cfg(not(feature = "http"))]
-    let settings: &'static Settings = &SETTINGS;
-
-    static RESOURCES: StaticCell<StackResources<SOCKETS>> = StaticCell::new();
+    let settings = SETTINGS;
     // No entropy source on this board: the seed only varies TCP's initial
     // sequence numbers and ports between boards, so the MAC will do.
     let [a, b, c, d, e, f] = mac;
     let seed = u64::from_le_bytes([a, b, c, d, e, f, 0x4d, 0x42]);
-    #[cfg(feature = "robot-link")]
-    ROBOT_LINK.configure(&settings.robot);
-    let name = settings.device.name.or_default(mac);
-    let config = adapter::net::initial_config(&settings.network, &name);
-    let (stack, runner) = embassy_net::new(ethernet, config, RESOURCES.init(StackResources::new()), seed);
-
-    static DEVICE: StaticCell<Device<'static>> = StaticCell::new();
-    let device: &'static Device<'static> = DEVICE.init(Device::new(settings.watchdog(), MODEL, &LEDS));
-    device.drive_outputs();
-    static SERVER: StaticCell<ModbusServer> = StaticCell::new();
-    let server: &'static ModbusServer = SERVER.init(Server::new(settings.server_config(mac), device));
-
-    #[cfg(feature = "http")]
-    let (api, names): (&'static Api, &'static dyn DeviceName) = {
-        let platform = platform::Mps2::new(stack, mac, settings.network.mode);
-        let control = Controller::new(server, platform, store, &loaded);
-        #[cfg(feature = "robot-link")]
-        let control = control.with_robot_link(&ROBOT_LINK);
-        static CONTROL: StaticCell<Control> = StaticCell::new();
-        let control: &'static Control = CONTROL.init(control);
-        static API: StaticCell<Api> = StaticCell::new();
-        (API.init(adapter::http::Http::new(control, adapter::http::HTTP_PORT)), control)
-    };
-    // Without the settings store the name never changes.
-    #[cfg(not(feature = "http"))]
-    let names: &'static dyn DeviceName = {
-        static NAME: StaticCell<Name> = StaticCell::new();
-        NAME.init(name)
-    };
-
+    let (stack, runner, settings) = program::network(ethernet, settings, mac, seed);
+    let program = program::build(Board {
+        stack,
+        settings,
+        mac,
+        model: MODEL,
+        outputs: &LEDS,
+        #[cfg(feature = "http")]
+        store,
+        #[cfg(feature = "http")]
+        loaded,
+        #[cfg(feature = "http")]
+        platform: platform::Mps2::new(stack, mac, settings.network.mode),
+        #[cfg(feature = "http")]
+        http_port: Some(adapter::http::HTTP_PORT),
+    });
     runtime::run(|spawner| {
-        let shared = Shared {
-            stack,
-            settings,
-            names,
-            device,
-            server,
-            #[cfg(feature = "http")]
-            api,
-        };
-        let spawned = spawn_all(spawner, runner, shared);
+        let spawned = program::spawn(spawner, program, runner, RamInputs::default(), NoRobot)
+            .and_then(|()| spawn_board(spawner, program));
         if let Err(e) = spawned {
             fail("spawn", e)
         }
@@ -183,42 +140,10 @@ fn load_settings() -> (Store<platform::SettingsFlash>, adapter::storage::Loaded)
     (store, loaded)
 }
 
-/// What the tasks share, all of it for the life of the program.
-#[derive(Clone, Copy)]
-struct Shared {
-    stack: Stack<'static>,
-    /// The settings in force at start.
-    settings: &'static Settings,
-    /// The device name in force (the API may change it).
-    names: &'static dyn DeviceName,
-    device: &'static Device<'static>,
-    server: &'static ModbusServer,
-    #[cfg(feature = "http")]
-    api: &'static Api,
-}
-
-fn spawn_all(
-    spawner: Spawner,
-    runner: Runner<'static, Lan9118<Mmio>>,
-    shared: Shared,
-) -> Result<(), embassy_executor::SpawnError> {
-    #[cfg(feature = "http")]
-    let Shared { stack, settings, names, device, server, api } = shared;
-    #[cfg(not(feature = "http"))]
-    let Shared { stack, settings, names, device, server } = shared;
-    spawner.spawn(net_task(runner)?);
-    spawner.spawn(link_task(stack, &settings.network, server, names)?);
-    #[cfg(feature = "mdns")]
-    {
-        let services = adapter::program::mdns_services(MODEL, server.config().port);
-        spawner.spawn(mdns_task(stack, names, services)?);
-    }
-    spawner.spawn(refresh_task(device)?);
-    #[cfg(feature = "robot-link")]
-    spawner.spawn(robot_link_task(stack, device)?);
-    for slot in 0..SOCKET_POOL {
-        spawner.spawn(modbus_task(stack, server, slot)?);
-    }
+/// What this board runs besides the program's tasks: the locate blinker,
+/// and with `update` the confirmation and the bootloader's watchdog.
+fn spawn_board(spawner: Spawner, program: Program) -> Result<(), embassy_executor::SpawnError> {
+    let _ = (spawner, program);
     // Without an updater the confirmation only settles the trial flag, so
     // that the watchdog is petted (a reset every 30 s would not help).
     #[cfg(feature = "update")]
@@ -226,15 +151,11 @@ fn spawn_all(
         if !update::install() {
             defmt::error!("update: no updater: this image cannot confirm itself");
         }
-        spawner.spawn(confirm_task(stack, device)?);
+        spawner.spawn(confirm_task(program.stack, program.device)?);
+        spawner.spawn(watchdog_task()?);
     }
-    #[cfg(feature = "update")]
-    spawner.spawn(watchdog_task()?);
     #[cfg(feature = "http")]
     {
-        for _ in 0..adapter::http::MAX_HTTP_CONNECTIONS {
-            spawner.spawn(http_task(stack, api)?);
-        }
         spawner.spawn(locate_task()?);
         defmt::info!("HTTP API on port {}", adapter::http::HTTP_PORT);
     }
@@ -244,59 +165,6 @@ fn spawn_all(
 fn fail(what: &str, error: impl defmt::Format) -> ! {
     defmt::error!("{=str} failed: {}", what, error);
     runtime::exit(runtime::EXIT_FAULT)
-}
-
-#[embassy_executor::task]
-async fn net_task(mut runner: Runner<'static, Lan9118<Mmio>>) -> ! {
-    runner.run().await
-}
-
-/// Follows the link with the adapter's network policy (DHCP's hostname: the name in force).
-#[embassy_executor::task]
-async fn link_task(
-    stack: Stack<'static>,
-    network: &'static NetworkSettings,
-    server: &'static ModbusServer,
-    names: &'static dyn DeviceName,
-) -> ! {
-    adapter::net::run(stack, network, server, names).await
-}
-
-/// Answers mDNS queries for the name in force and the services.
-#[cfg(feature = "mdns")]
-#[embassy_executor::task]
-async fn mdns_task(stack: Stack<'static>, names: &'static dyn DeviceName, services: adapter::mdns::Services) -> ! {
-    adapter::mdns::run(stack, names, services).await
-}
-
-#[embassy_executor::task]
-async fn refresh_task(device: &'static Device<'static>) -> ! {
-    #[cfg(not(feature = "robot-link"))]
-    let mut robot = NoRobot;
-    // The link wins while it is set; no robot otherwise.
-    #[cfg(feature = "robot-link")]
-    let mut robot = adapter::link::Gated::new(&ROBOT_LINK, NoRobot);
-    device::refresh_loop(device, &mut RamInputs::default(), &mut robot).await
-}
-
-/// Polls the robot controller while `robot.link` is set.
-#[cfg(feature = "robot-link")]
-#[embassy_executor::task]
-async fn robot_link_task(stack: Stack<'static>, device: &'static Device<'static>) -> ! {
-    adapter::link::run(stack, device, &ROBOT_LINK).await
-}
-
-/// One Modbus listener per socket; its buffers live in the task's static storage.
-#[embassy_executor::task(pool_size = SOCKET_POOL)]
-async fn modbus_task(stack: Stack<'static>, server: &'static ModbusServer, slot: SlotId) -> ! {
-    server::listen(stack, server, slot).await
-}
-
-/// One HTTP listener per connection; its buffers live in the task's static storage.
-#[cfg(feature = "http")]
-#[embassy_executor::task(pool_size = adapter::http::MAX_HTTP_CONNECTIONS)]
-async fn http_task(stack: Stack<'static>, api: &'static Api) -> ! {
-    adapter::http::listen(stack, api).await
 }
 
 /// Blinks LED1 for `POST /api/locate`.
@@ -309,7 +177,7 @@ async fn locate_task() -> ! {
 /// Confirms this image once it serves, when it runs on trial after a swap.
 #[cfg(feature = "update")]
 #[embassy_executor::task]
-async fn confirm_task(stack: Stack<'static>, device: &'static Device<'static>) {
+async fn confirm_task(stack: embassy_net::Stack<'static>, device: &'static adapter::device::Device<'static>) {
     update::confirm_when_serving(stack, device).await
 }
 

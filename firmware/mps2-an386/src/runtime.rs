@@ -20,7 +20,7 @@ pub const EXIT_FAULT: i32 = 102;
 /// Runs the executor forever (`cortex_m_support`: `wfi` between polls,
 /// each sleep reported to the CPU load meter): `init` spawns the first tasks.
 pub fn run(init: impl FnOnce(Spawner)) -> ! {
-    cortex_m_support::run(init, |from, to| adapter::load::CPU_LOAD.slept(from, to))
+    cortex_m_support::run(init, |from, to| adapter::cpu_load::CPU_LOAD.slept(from, to))
 }
 
 /// Ends the QEMU process with `code` (semihosting `SYS_EXIT_EXTENDED`).

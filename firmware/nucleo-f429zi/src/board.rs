@@ -262,19 +262,17 @@ pub fn init() -> Board {
     }
 }
 
-/// Spawns the board's own tasks: the watchdog feeder, the network runner,
-/// the input edges and the LEDs.
+/// Spawns the board's own tasks: the watchdog feeder, the input edges and
+/// the LEDs (the program's tasks are `program::spawn`'s).
 pub fn spawn(
     spawner: Spawner,
     tasks: Tasks,
-    runner: net::Runner,
     stack: Stack<'static>,
     device: &'static Device<'static>,
     server: &'static ModbusServer,
 ) -> Result<(), SpawnError> {
     let Tasks { watchdog, edges, leds } = tasks;
     spawner.spawn(safety::watchdog_task(watchdog)?);
-    spawner.spawn(net::runner_task(runner)?);
     spawner.spawn(pins::edge_task(edges, device)?);
     spawner.spawn(leds::led_task(leds, stack, server)?);
     Ok(())

@@ -1,4 +1,4 @@
-//! Factory reset by the user button (B1, PC13; DEVICE.md section 1): held
+//! Factory reset by the user button (B1, PC13; docs/settings.md): held
 //! down at power-up for [`HOLD`], the saved settings and the admin password
 //! are erased before they are read.
 //!

@@ -1,7 +1,7 @@
 //! Settings on the device and the HTTP API's board side (feature `http`,
 //! on by default): the settings store over bank 2's sectors 12-13
 //! ([`flash::SettingsFlash`]) and the [`Platform`] the settings service
-//! ([`Controller`]) runs on, which the HTTP API calls.
+//! (`adapter::control::Controller`) runs on, which the HTTP API calls.
 //!
 //! | what | how, on this board |
 //! |---|---|
@@ -16,10 +16,7 @@
 
 use core::cell::RefCell;
 
-use adapter::control::{Controller, NetworkStatus, Platform};
-use adapter::device::Device;
-use adapter::http::{HTTP_PORT, Http};
-use adapter::server::Server;
+use adapter::control::{NetworkStatus, Platform};
 use adapter::settings::{NetMode, Settings};
 use adapter::storage::{Loaded, Store};
 use defmt::unwrap;
@@ -29,15 +26,9 @@ use embassy_stm32::rng::Rng;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_time::Duration;
-use static_cell::StaticCell;
 
 use crate::safety::ResetCause;
 use crate::{SETTINGS, flash, leds};
-
-/// The settings service on this board.
-pub type Control = Controller<'static, flash::SettingsFlash, Nucleo>;
-/// The HTTP API over it.
-pub type Api = Http<'static, flash::SettingsFlash, Nucleo>;
 
 /// The settings store over the settings flash, and what it holds, erased
 /// first when `factory_reset` (the user button held at power-up). A load
@@ -59,22 +50,6 @@ pub async fn load(flash: flash::SettingsFlash, factory_reset: bool) -> (Store<fl
     }
     defmt::info!("settings: {} records; storage ok: {}", loaded.status.records, loaded.status.ok);
     (store, loaded)
-}
-
-/// The API over `store`, as `loaded` found it, for the server built from
-/// `settings` (the settings in force).
-pub fn api(
-    server: &'static Server<'static, Device<'static>>,
-    platform: Nucleo,
-    store: Store<flash::SettingsFlash>,
-    loaded: &Loaded,
-) -> &'static Api {
-    static CONTROL: StaticCell<Control> = StaticCell::new();
-    static API: StaticCell<Api> = StaticCell::new();
-    let control = Controller::new(server, platform, store, loaded);
-    #[cfg(feature = "robot-link")]
-    let control = control.with_robot_link(&crate::ROBOT_LINK);
-    API.init(Http::new(CONTROL.init(control), HTTP_PORT))
 }
 
 /// What only this board knows or does, for the HTTP API.

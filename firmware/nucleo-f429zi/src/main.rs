@@ -24,19 +24,20 @@ mod safety;
 #[cfg(feature = "update")]
 mod update;
 
-use adapter::device::{self, Device};
-use adapter::net::DeviceName;
-use adapter::server::{self, SOCKET_POOL, Server, SlotId};
-#[cfg(not(feature = "http"))]
-use adapter::settings::Name;
 use adapter::settings::Settings;
 use defmt::unwrap;
 use defmt_rtt as _;
 use embassy_executor::Spawner;
-use embassy_net::Stack;
 use m4_mem as _; // its copy, move and fill routines instead of compiler-builtins' (BENCHMARKS.md)
 use panic_probe as _;
-use static_cell::StaticCell;
+
+adapter::program! {
+    driver: net::Device,
+    inputs: pins::Inputs,
+    robot: BoardRobot,
+    flash: flash::SettingsFlash,
+    platform: http::Nucleo,
+}
 
 /// The factory settings: the defaults with the build's variables applied
 /// (a bad value stops the build).
@@ -48,9 +49,6 @@ const _: () = assert!(SETTINGS.modbus.port != adapter::http::HTTP_PORT, "MODBUS_
 
 /// The board, as Read Device Identification (ModelName), `/api/status` and mDNS's TXT name it.
 pub const MODEL: &str = "nucleo-f429zi";
-
-/// The Modbus server over the device.
-pub type ModbusServer = Server<'static, Device<'static>>;
 
 #[cfg(not(feature = "sim-robot"))]
 type BoardRobot = adapter::io::NoRobot;
@@ -66,16 +64,12 @@ const fn robot() -> BoardRobot {
     return sim_robot::SimRobot::new(sim_robot::Mode::Demo);
 }
 
-/// The robot link (`robot-link`): the source of the robot's points while `robot.link` is set.
-#[cfg(feature = "robot-link")]
-pub static ROBOT_LINK: adapter::link::Link = adapter::link::Link::new();
-
 #[cortex_m_rt::entry]
 fn main() -> ! {
     // The executor loop measures the CPU load (cortex_m_support).
     cortex_m_support::run(
         |spawner| spawner.spawn(unwrap!(start(spawner))),
-        |from, to| adapter::load::CPU_LOAD.slept(from, to),
+        |from, to| adapter::cpu_load::CPU_LOAD.slept(from, to),
     )
 }
 
@@ -93,58 +87,30 @@ async fn start(spawner: Spawner) {
     #[cfg(feature = "http")]
     let (store, loaded) = embassy_futures::block_on(http::load(board.flash.settings, board.factory_reset));
     #[cfg(feature = "http")]
-    let settings: &'static Settings = {
-        static IN_FORCE: StaticCell<Settings> = StaticCell::new();
-        IN_FORCE.init(loaded.settings)
-    };
+    let settings = loaded.settings;
     #[cfg(not(feature = "http"))]
-    let settings: &'static Settings = &SETTINGS;
-
-    #[cfg(feature = "robot-link")]
-    ROBOT_LINK.configure(&settings.robot);
-    static DEVICE: StaticCell<Device<'static>> = StaticCell::new();
-    let device = &*DEVICE.init(Device::new(settings.watchdog(), MODEL, board.outputs));
-    device.drive_outputs();
-    static SERVER: StaticCell<ModbusServer> = StaticCell::new();
-    let server = &*SERVER.init(Server::new(settings.server_config(board.mac), device));
-
-    let name = settings.device.name.or_default(board.mac);
-    let config = adapter::net::initial_config(&settings.network, &name);
-    let (stack, runner) = embassy_net::new(board.ethernet, config, net::resources(), board.seed);
-
-    #[cfg(feature = "http")]
-    let api = {
-        let platform = http::Nucleo::new(stack, board.mac, settings, board.reset, board.rng);
-        http::api(server, platform, store, &loaded)
-    };
-    // The name in force: the settings' (the API may change it), or without
-    // the store the factory name, fixed.
-    #[cfg(feature = "http")]
-    let names: &'static dyn DeviceName = api.control();
-    #[cfg(not(feature = "http"))]
-    let names: &'static dyn DeviceName = {
-        static NAME: StaticCell<Name> = StaticCell::new();
-        NAME.init(name)
-    };
+    let settings = SETTINGS;
+    let (stack, runner, settings) = program::network(board.ethernet, settings, board.mac, board.seed);
+    let program = program::build(Board {
+        stack,
+        settings,
+        mac: board.mac,
+        model: MODEL,
+        outputs: board.outputs,
+        #[cfg(feature = "http")]
+        store,
+        #[cfg(feature = "http")]
+        loaded,
+        #[cfg(feature = "http")]
+        platform: http::Nucleo::new(stack, board.mac, settings, board.reset, board.rng),
+        #[cfg(feature = "http")]
+        http_port: Some(adapter::http::HTTP_PORT),
+    });
 
     // Every task pool is sized for exactly these spawns; a failure is a build
     // mistake, and its panic ends in the fault handler (outputs off, reset).
-    unwrap!(board::spawn(spawner, board.tasks, runner, stack, device, server));
-    // The link supervisor, on the settings in force (without the `http`
-    // feature the factory settings, a constant: 40 bytes less).
-    spawner.spawn(unwrap!(net::link_task(
-        stack,
-        #[cfg(feature = "http")]
-        &settings.network,
-        server,
-        names
-    )));
-    for slot in 0..SOCKET_POOL {
-        spawner.spawn(unwrap!(modbus_task(stack, server, slot)));
-    }
-    spawner.spawn(unwrap!(refresh_task(device, board.inputs)));
-    #[cfg(feature = "robot-link")]
-    spawner.spawn(unwrap!(robot_link_task(stack, device)));
+    unwrap!(board::spawn(spawner, board.tasks, stack, program.device, program.server));
+    unwrap!(program::spawn(spawner, program, runner, board.inputs, robot()));
     // Without an updater the confirmation only settles the trial flag, so
     // that the watchdog is fed (a reset every 30 s would not help).
     #[cfg(feature = "update")]
@@ -152,65 +118,15 @@ async fn start(spawner: Spawner) {
         if !update::install(board.flash.dfu, board.flash.state) {
             defmt::error!("update: no updater: this image cannot confirm itself");
         }
-        spawner.spawn(unwrap!(confirm_task(stack, device)));
+        spawner.spawn(unwrap!(confirm_task(stack, program.device)));
     }
-    #[cfg(feature = "http")]
-    {
-        for _ in 0..adapter::http::MAX_HTTP_CONNECTIONS {
-            spawner.spawn(unwrap!(http_task(stack, api)));
-        }
-        defmt::info!("HTTP API on port {}", adapter::http::HTTP_PORT);
-    }
-    #[cfg(feature = "mdns")]
-    {
-        let services = adapter::program::mdns_services(MODEL, server.config().port);
-        spawner.spawn(unwrap!(mdns_task(stack, names, services)));
-    }
-    let config = server.config();
+    let config = program.server.config();
     defmt::info!("serving Modbus TCP on port {}, {} sessions", config.port, config.max_connections);
-}
-
-/// The 100 ms refresh of the inputs, the analog readings and the robot data.
-#[embassy_executor::task]
-async fn refresh_task(device: &'static Device<'static>, mut inputs: pins::Inputs) -> ! {
-    #[cfg(not(feature = "robot-link"))]
-    let mut robot = robot();
-    // The link wins over the board's own source while it is set.
-    #[cfg(feature = "robot-link")]
-    let mut robot = adapter::link::Gated::new(&ROBOT_LINK, robot());
-    device::refresh_loop(device, &mut inputs, &mut robot).await
-}
-
-/// Polls the robot controller while `robot.link` is set.
-#[cfg(feature = "robot-link")]
-#[embassy_executor::task]
-async fn robot_link_task(stack: embassy_net::Stack<'static>, device: &'static Device<'static>) -> ! {
-    adapter::link::run(stack, device, &ROBOT_LINK).await
-}
-
-/// Answers mDNS queries for the name in force and the services.
-#[cfg(feature = "mdns")]
-#[embassy_executor::task]
-async fn mdns_task(stack: Stack<'static>, names: &'static dyn DeviceName, services: adapter::mdns::Services) -> ! {
-    adapter::mdns::run(stack, names, services).await
-}
-
-/// One Modbus listener per socket; its buffers live in the task's static storage.
-#[embassy_executor::task(pool_size = SOCKET_POOL)]
-async fn modbus_task(stack: Stack<'static>, server: &'static ModbusServer, slot: SlotId) -> ! {
-    server::listen(stack, server, slot).await
-}
-
-/// One HTTP listener per connection; its buffers live in the task's static storage.
-#[cfg(feature = "http")]
-#[embassy_executor::task(pool_size = adapter::http::MAX_HTTP_CONNECTIONS)]
-async fn http_task(stack: Stack<'static>, api: &'static http::Api) -> ! {
-    adapter::http::listen(stack, api).await
 }
 
 /// Confirms this image once it serves, when it runs on trial after a swap.
 #[cfg(feature = "update")]
 #[embassy_executor::task]
-async fn confirm_task(stack: Stack<'static>, device: &'static Device<'static>) {
+async fn confirm_task(stack: embassy_net::Stack<'static>, device: &'static adapter::device::Device<'static>) {
     update::confirm_when_serving(stack, device).await
 }

@@ -1,4 +1,4 @@
-//! The adapter's firmware update file (DEVICE.md section 5, docs/update.md):
+//! The adapter's firmware update file (docs/update.md):
 //! a fixed header with an ed25519 signature, then the payload, the
 //! application binary for the board's ACTIVE partition.
 //!
@@ -115,36 +115,9 @@ impl fmt::Display for FormatError {
 
 impl core::error::Error for FormatError {}
 
-/// A firmware version, major.minor.patch.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct Version {
-    pub major: u16,
-    pub minor: u16,
-    pub patch: u16,
-}
-
-impl Version {
-    /// Parses `X.Y.Z`, each part a decimal `u16`.
-    pub fn parse(text: &str) -> Option<Self> {
-        let mut parts = text.split('.');
-        let mut next = || -> Option<u16> {
-            let part = parts.next()?;
-            if part.is_empty() || !part.bytes().all(|b| b.is_ascii_digit()) {
-                return None;
-            }
-            part.parse().ok()
-        };
-        let version = Self { major: next()?, minor: next()?, patch: next()? };
-        parts.next().is_none().then_some(version)
-    }
-}
-
-impl fmt::Display for Version {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}.{}.{}", self.major, self.minor, self.patch)
-    }
-}
+/// A firmware version, major.minor.patch: the hardware seam's
+/// (`adapter_io::Version`), which the adapter reports too.
+pub use adapter_io::Version;
 
 /// A board id: 1 to [`MAX_BOARD_LEN`] bytes of `a-z 0-9 -` (the board
 /// crate's name, `mps2-an386`, `nucleo-f429zi`).

@@ -137,7 +137,7 @@ impl Executor {
                     idle_since = None;
                 }
                 // Busy polling is waiting too: the load is the tasks' work.
-                adapter::load::CPU_LOAD.slept(asleep, embassy_time::Instant::now());
+                adapter::cpu_load::CPU_LOAD.slept(asleep, embassy_time::Instant::now());
                 busy_rounds = 0;
             } else {
                 idle_since = None;

@@ -142,7 +142,7 @@ pub struct Controller<'a, F: NorFlash, P: Platform> {
     /// The robot link the program runs: it takes the `robot` settings at
     /// once, and its health is in the status.
     #[cfg(feature = "robot-link")]
-    link: Option<&'a crate::link::Link>,
+    link: Option<&'a crate::robot_link::Link>,
 }
 
 impl<F: NorFlash, P: Platform> core::fmt::Debug for Controller<'_, F, P> {
@@ -171,7 +171,7 @@ impl<'a, F: NorFlash, P: Platform> Controller<'a, F, P> {
     /// while set.
     #[cfg(feature = "robot-link")]
     #[must_use]
-    pub fn with_robot_link(self, link: &'a crate::link::Link) -> Self {
+    pub fn with_robot_link(self, link: &'a crate::robot_link::Link) -> Self {
         Self { link: Some(link), ..self }
     }
 
@@ -276,7 +276,7 @@ impl<'a, F: NorFlash, P: Platform> Controller<'a, F, P> {
     /// the platform's own source.
     pub fn robot_source(&self) -> RobotSource {
         #[cfg(feature = "robot-link")]
-        if self.link.is_some_and(crate::link::Link::is_set) {
+        if self.link.is_some_and(crate::robot_link::Link::is_set) {
             return RobotSource::Link;
         }
         self.platform.local_robot()
@@ -284,8 +284,8 @@ impl<'a, F: NorFlash, P: Platform> Controller<'a, F, P> {
 
     /// The robot link's health; `None` while no link is set.
     #[cfg(feature = "robot-link")]
-    pub fn robot_link(&self) -> Option<crate::link::Status> {
-        self.link.map(crate::link::Link::status).filter(|status| status.target.is_some())
+    pub fn robot_link(&self) -> Option<crate::robot_link::Health> {
+        self.link.map(crate::robot_link::Link::health).filter(|status| status.target.is_some())
     }
 
     /// The settings store's health.

@@ -103,7 +103,7 @@ fn the_robot_settings_reach_the_link_at_once() {
     changed.set(Field::RobotLinkAddress, "198.18.0.1:1502/2").unwrap();
     changed.set(Field::RobotPollInterval, "250").unwrap();
     assert_eq!(block_on(control.apply(&changed)), Ok(false), "no reboot");
-    assert_eq!(control.link.map(|link| link.status().target), Some(changed.robot.link));
+    assert_eq!(control.link.map(|link| link.health().target), Some(changed.robot.link));
     assert_eq!(control.robot_source(), RobotSource::Link);
     assert_eq!(control.robot_link().map(|link| link.up), Some(false), "set, not up yet");
 }

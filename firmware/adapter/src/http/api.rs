@@ -391,7 +391,7 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
         out.number(now.as_secs());
         out.text(",\"cpu_load_percent\":");
         // What the program's executor loop reported (none in the tests).
-        optional(out, crate::load::CPU_LOAD.percent(), |out, load| out.number(load));
+        optional(out, crate::cpu_load::CPU_LOAD.percent(), |out, load| out.number(load));
         out.text(",\"mac\":");
         out.string_with(|w| text::write_mac(w, mac));
         out.text(",\"reset_reason\":");
@@ -607,7 +607,7 @@ fn robot_state_name(code: u16) -> &'static str {
     }
 }
 
-/// Every setting grouped as DEVICE.md's table, numbers unquoted, and the
+/// Every setting grouped as docs/settings.md's table, numbers unquoted, and the
 /// admin group with only whether a password is set; with
 /// `reboot_required` after a change.
 pub(super) fn settings_document(

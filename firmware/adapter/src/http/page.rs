@@ -1,4 +1,4 @@
-//! The device's page (`GET /`, DEVICE.md section 2): one self-contained
+//! The device's page (`GET /`, docs/http-api.md): one self-contained
 //! HTML document (inline CSS and JS, nothing fetched from elsewhere), kept
 //! readable in `page.html` and served from flash as build.rs made it:
 //! indentation, blank lines and `//` comment lines stripped, then gzipped.
@@ -14,7 +14,7 @@
 /// 1952), in flash.
 pub static PAGE: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/page.html.gz"));
 
-/// The most the page may be as served (DEVICE.md section 2).
+/// The most the page may be as served (docs/http-api.md).
 pub const MAX_PAGE_LEN: usize = 24 * 1024;
 
 const _: () = assert!(PAGE.len() <= MAX_PAGE_LEN, "the page is over 24 KiB as served");

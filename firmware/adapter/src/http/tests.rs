@@ -98,7 +98,7 @@ fn the_page_is_served_gzipped_from_flash_to_a_client_that_takes_gzip() {
     let html = page::tests::decompressed(&response.body);
     assert!(html.starts_with("<!DOCTYPE html>") && html.contains("<title>"), "{html}");
     let served = response.head.len() + 4 + response.body.len();
-    assert!(served <= page::MAX_PAGE_LEN, "{served} bytes served: over DEVICE.md's 24 KiB");
+    assert!(served <= page::MAX_PAGE_LEN, "{served} bytes served: over the page's 24 KiB");
 
     // A client that does not take gzip is told how to get the page.
     for headers in ["", "Accept-Encoding: identity\r\n", "Accept-Encoding: deflate, br\r\n"] {

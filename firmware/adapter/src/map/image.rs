@@ -4,7 +4,7 @@
 //! Application Protocol's state diagrams (address, then value), and a multiple
 //! write is checked in full before anything changes.
 
-use super::table::{self, Access, COILS, CoilView, Encoding, REGISTER_COUNT, REGISTERS, Update, reg, rows_in};
+use super::table::{self, COILS, CoilView, Encoding, Permission, REGISTER_COUNT, REGISTERS, Update, reg, rows_in};
 use crate::modbus::Exception;
 
 /// What a master may write (docs/data-map.md, decision 3).
@@ -53,15 +53,15 @@ fn overlap(row: (u16, u16), first: u16, last: u16) -> core::ops::RangeInclusive<
 }
 
 /// Exception 02 for an address a write may not touch under `policy`.
-fn check_writable(access: Access, policy: WritePolicy) -> Result<(), Exception> {
+fn check_writable(access: Permission, policy: WritePolicy) -> Result<(), Exception> {
     match (access, policy) {
-        (Access::Reserved, _) | (Access::Read, WritePolicy::Strict) => Err(Exception::IllegalDataAddress),
+        (Permission::Reserved, _) | (Permission::Read, WritePolicy::Strict) => Err(Exception::IllegalDataAddress),
         _ => Ok(()),
     }
 }
 
 /// Whether writing a point with this access and update class drives hardware.
-fn drives_outputs(access: Access, update: Update) -> bool {
+fn drives_outputs(access: Permission, update: Update) -> bool {
     access.writable() && update != Update::Master
 }
 
@@ -99,7 +99,7 @@ impl Image {
     /// Sets a register from its source (pins, robot, boot); bypasses the
     /// policy. Reserved addresses are left alone: they always read 0.
     pub fn set_register(&mut self, address: u16, value: u16) {
-        let reserved = table::register_row(address).is_none_or(|row| row.access == Access::Reserved);
+        let reserved = table::register_row(address).is_none_or(|row| row.access == Permission::Reserved);
         if let Some(slot) = self.registers.get_mut(usize::from(address)).filter(|_| !reserved) {
             *slot = value;
         }

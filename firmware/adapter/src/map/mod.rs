@@ -5,4 +5,4 @@ pub mod points;
 pub mod table;
 
 pub use image::{Image, WritePolicy, Written};
-pub use table::{Access, COIL_COUNT, CoilView, Encoding, REGISTER_COUNT, Update};
+pub use table::{COIL_COUNT, CoilView, Encoding, Permission, REGISTER_COUNT, Update};

@@ -9,7 +9,7 @@
 /// What a master may do with an address.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Access {
+pub enum Permission {
     /// Reads 0; any write is exception 02.
     Reserved,
     /// Driven by a source (pins, robot, boot). Writes follow the write policy.
@@ -20,7 +20,7 @@ pub enum Access {
     ReadWrite,
 }
 
-impl Access {
+impl Permission {
     /// Whether a write is accepted under the `strict` policy.
     pub const fn writable(self) -> bool {
         matches!(self, Self::Write | Self::ReadWrite)
@@ -109,7 +109,7 @@ pub struct RegisterRow {
     pub first: u16,
     /// Last address of the run (inclusive).
     pub last: u16,
-    pub access: Access,
+    pub access: Permission,
     pub update: Update,
     pub encoding: Encoding,
     /// The point's name, as in docs/data-map.md (for test messages; the table's
@@ -139,7 +139,7 @@ pub enum CoilView {
 pub struct CoilRow {
     pub first: u16,
     pub last: u16,
-    pub access: Access,
+    pub access: Permission,
     pub update: Update,
     pub view: CoilView,
     /// The point's name (test builds only, as for [`RegisterRow`]).
@@ -213,14 +213,14 @@ pub const DIGITAL_PINS: u8 = 16;
 /// Tool digital inputs and outputs.
 pub const TOOL_PINS: u8 = 6;
 
-use Access::{Read, ReadWrite, Reserved, Write};
 use Encoding::*;
+use Permission::{Read, ReadWrite, Reserved, Write};
 use Update::{Boot, Event, Every100Ms, Master, Never};
 
 const fn r(
     first: u16,
     last: u16,
-    access: Access,
+    access: Permission,
     update: Update,
     encoding: Encoding,
     name: &'static str,
@@ -290,7 +290,7 @@ pub static REGISTERS: [RegisterRow; 44] = [
     r(430, 435, Read, Every100Ms, Signed, "task external force X Y Z (N), moment X Y Z (N m)"),
 ];
 
-const fn c(first: u16, last: u16, access: Access, view: CoilView, name: &'static str) -> CoilRow {
+const fn c(first: u16, last: u16, access: Permission, view: CoilView, name: &'static str) -> CoilRow {
     let update = if matches!(view, CoilView::Reserved) { Never } else { Event };
     let _ = name; // stored in test builds only
     CoilRow {
@@ -362,12 +362,12 @@ mod tests {
     #[test]
     fn reserved_rows_are_consistent() {
         for row in &REGISTERS {
-            let reserved = row.access == Access::Reserved;
+            let reserved = row.access == Permission::Reserved;
             assert_eq!(reserved, row.encoding == Encoding::Zero, "{}", row.name);
             assert_eq!(reserved, row.update == Update::Never, "{}", row.name);
         }
         for row in &COILS {
-            assert_eq!(row.access == Access::Reserved, row.view == CoilView::Reserved, "{}", row.name);
+            assert_eq!(row.access == Permission::Reserved, row.view == CoilView::Reserved, "{}", row.name);
         }
     }
 
@@ -383,7 +383,7 @@ mod tests {
                 }
                 CoilView::NonZero { register } | CoilView::Equals { register, .. } => {
                     assert_eq!(row.first, row.last);
-                    assert_eq!(register_row(register).unwrap().access, Access::Read);
+                    assert_eq!(register_row(register).unwrap().access, Permission::Read);
                 }
                 CoilView::Reserved => {}
             }

@@ -107,7 +107,7 @@ counters! {
     refused_connections,
     /// Times the communication watchdog put the outputs in their safe state.
     watchdog_trips,
-    /// Robot link: polls of the controller applied whole (DEVICE.md section 4).
+    /// Robot link: polls of the controller applied whole (docs/robot-link.md).
     robot_polls,
     /// Robot link: polls that failed (no connection, a timeout, an exception,
     /// a reply that makes no sense).

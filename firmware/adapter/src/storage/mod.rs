@@ -1,4 +1,4 @@
-//! Settings that live on the device (DEVICE.md section 1): the saved
+//! Settings that live on the device (docs/settings.md): the saved
 //! [`Settings`] and the admin password's hash, power-fail safe, over any
 //! `embedded-storage-async` [`NorFlash`] a board gives.
 //!

@@ -1,4 +1,4 @@
-//! The admin password (DEVICE.md section 1): 8-64 bytes, kept only as a
+//! The admin password (docs/http-api.md, `PUT /api/password`): 8-64 bytes, kept only as a
 //! salted hash, never stored or shown itself.
 //!
 //! The hash is PBKDF2-HMAC-SHA256 (RFC 8018) over the password and a 16-byte

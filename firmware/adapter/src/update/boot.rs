@@ -42,7 +42,7 @@ pub enum Refused<E> {
 }
 
 /// How long an image on trial has to confirm itself, from its start
-/// (DEVICE.md section 5): after that the board's watchdog resets it.
+/// (docs/update.md): after that the board's watchdog resets it.
 pub const TRIAL_LIMIT_S: u64 = 30;
 
 /// Whether the running image is on trial, as the watchdog's feeder sees it.

@@ -1,4 +1,4 @@
-//! Firmware update (DEVICE.md section 5, docs/update.md): an update file
+//! Firmware update (docs/update.md): an update file
 //! ([`update_image`]'s format) taken in chunks as it arrives, its payload
 //! written into the DFU partition, its signature checked against the
 //! public key built into this firmware ([`PUBLIC_KEY`]), and only then the
@@ -48,7 +48,8 @@ use embedded_storage_async::nor_flash::{NorFlash, NorFlashError, NorFlashErrorKi
 pub mod boot;
 
 pub use crate::device::{BootState, FirmwareStatus};
-pub use update_image::{self as image, Board, FormatError, HEADER_LEN, Header, SignatureError, Version};
+use crate::io::Version;
+pub use update_image::{self as image, Board, FormatError, HEADER_LEN, Header, SignatureError};
 
 // PUBLIC_KEY and DEVELOPMENT_KEY, from the key file build.rs read.
 include!(concat!(env!("OUT_DIR"), "/update_key.rs"));
@@ -405,8 +406,7 @@ impl<'d, DFU: NorFlash, STATE: NorFlash> Updater<'d, DFU, STATE> {
             }
         }
         let accepted = self.finish().await.map_err(boot::Refused::Update)?;
-        let Version { major, minor, patch } = accepted.version;
-        Ok(crate::io::Version { major, minor, patch })
+        Ok(accepted.version)
     }
 
     async fn take(&mut self, mut chunk: &[u8]) -> Result<Progress, Error> {

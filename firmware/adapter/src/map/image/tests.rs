@@ -78,19 +78,19 @@ fn the_table_matches_data_map_md() {
     for address in 0..=reg::LAST {
         let row = table::register_row(address).unwrap();
         let want = match spec(SPEC_REGISTERS, address) {
-            R => Access::Read,
-            W => Access::Write,
-            RW => Access::ReadWrite,
-            Gap => Access::Reserved,
+            R => Permission::Read,
+            W => Permission::Write,
+            RW => Permission::ReadWrite,
+            Gap => Permission::Reserved,
         };
         assert_eq!(row.access, want, "register {address}");
     }
     for address in 0..=coil::LAST {
         let row = table::coil_row(address).unwrap();
         let want = match spec(SPEC_COILS, address) {
-            R => Access::Read,
-            RW => Access::ReadWrite,
-            Gap => Access::Reserved,
+            R => Permission::Read,
+            RW => Permission::ReadWrite,
+            Gap => Permission::Reserved,
             W => panic!("docs/data-map.md has no write-only coils"),
         };
         assert_eq!(row.access, want, "coil {address}");

@@ -51,7 +51,7 @@ fn blocks_cover_the_robot_points_in_two_reads() {
     for address in 256..=435u16 {
         let row = table::register_row(address).unwrap();
         let covered = (256..=315).contains(&address) || (400..=435).contains(&address);
-        assert!(covered || row.access == Access::Reserved, "{address}");
+        assert!(covered || row.access == Permission::Reserved, "{address}");
     }
 }
 
@@ -97,14 +97,14 @@ fn a_good_poll_is_applied_whole_and_counted() {
     for (address, value) in (256u16..).zip(&points) {
         let expected = match address {
             256..=264 => [2, 11, 3, 2, 1, 0, 0, 0, 1][usize::from(address - 256)],
-            _ if table::register_row(address).unwrap().access == Access::Reserved => 0,
+            _ if table::register_row(address).unwrap().access == Permission::Reserved => 0,
             _ => 42,
         };
         assert_eq!(*value, expected, "register {address}");
     }
     assert!(device.read(|i| i.coil(260)), "coil 260 follows register 260");
     clock.advance(Duration::from_millis(30));
-    let status = link.status();
+    let status = link.health();
     assert!(status.up);
     assert_eq!((status.polls, status.errors), (1, 0));
     assert_eq!(status.last_ok.map(|at| at.elapsed()), Some(Duration::from_millis(30)));
@@ -121,21 +121,21 @@ fn three_failed_polls_in_a_row_take_the_link_down() {
     link.good(device, &snapshot(5));
     link.failed(device, true);
     link.failed(device, true);
-    assert!(link.status().up, "two failures: still up, the last poll's values");
+    assert!(link.health().up, "two failures: still up, the last poll's values");
     assert_eq!(device.read(|i| i.register(270)), 5);
     link.good(device, &snapshot(6));
     link.failed(device, true);
     link.failed(device, true);
-    assert!(link.status().up, "a good poll starts the count afresh");
+    assert!(link.health().up, "a good poll starts the count afresh");
     link.failed(device, true);
-    assert!(!link.status().up);
+    assert!(!link.health().up);
     let points = robot_points(device);
     assert_eq!(points[3], 15, "259 reads NOT READY");
     assert!(points.iter().enumerate().all(|(i, &v)| i == 3 || v == 0), "the rest reads 0: {points:?}");
     let counters = device.stats().snapshot();
     assert_eq!((counters.robot_polls, counters.robot_errors, counters.robot_link_downs), (2, 5, 1));
     link.good(device, &snapshot(7));
-    assert!(link.status().up, "and back with the next good poll");
+    assert!(link.health().up, "and back with the next good poll");
     assert_eq!(device.read(|i| i.register(259)), 2);
 }
 
@@ -147,7 +147,7 @@ fn no_connection_is_down_at_once() {
     link.configure(&target());
     link.good(device, &snapshot(5));
     link.failed(device, false);
-    assert!(!link.status().up);
+    assert!(!link.health().up);
     assert_eq!(device.read(|i| (i.register(259), i.register(256), i.register(270))), (15, 0, 0));
 }
 

@@ -1,4 +1,4 @@
-//! CPU load (DEVICE.md section 6): the share of each second that the
+//! CPU load (docs/http-api.md, `cpu_load_percent`): the share of each second that the
 //! executor is not asleep waiting for an interrupt (or, in hal-sim, for a
 //! descriptor or a timer).
 //!

@@ -1,4 +1,4 @@
-//! The robot link (DEVICE.md section 4): the adapter as the gateway of the
+//! The robot link (docs/robot-link.md): the adapter as the gateway of the
 //! real robot controller. One Modbus TCP client connection to `robot.link`
 //! reads the robot's points every `robot.poll_ms` and puts each poll into
 //! the image whole; the masters read them from the image, never from the
@@ -43,7 +43,7 @@ use embedded_io_async::Write as _;
 use crate::device::Device;
 use crate::io::{Robot, RobotSample, RobotStatus, Telemetry, Version};
 use crate::map::table::{self, reg};
-use crate::map::{Access, Image};
+use crate::map::{Image, Permission};
 use crate::modbus::client::{REQUEST_ADU_LEN, ReadHoldingRegisters, ReplyError};
 use crate::modbus::mbap::{self, MAX_ADU_LEN};
 use crate::modbus::pdu::MAX_READ_REGISTERS;
@@ -57,7 +57,7 @@ pub const LINK_RX_LEN: usize = MAX_ADU_LEN;
 pub const LINK_TX_LEN: usize = 2 * REQUEST_ADU_LEN;
 /// Failed polls in a row that take the link down.
 pub const FAILED_POLLS_FOR_DOWN: u8 = 3;
-/// The shortest time a request may take before it fails (DEVICE.md: 2 x `poll_ms`, at least 200 ms).
+/// The shortest time a request may take before it fails (docs/robot-link.md: 2 x `poll_ms`, at least 200 ms).
 pub const MIN_TIMEOUT: Duration = Duration::from_millis(200);
 /// The first wait before connecting again.
 pub const BACKOFF_FIRST: Duration = Duration::from_millis(100);
@@ -99,7 +99,7 @@ impl Snapshot {
         blocks.into_iter().all(|(start, values)| {
             (start..=u16::MAX).zip(values).all(|(address, &value)| {
                 table::register_row(address)
-                    .is_none_or(|row| row.access == Access::Reserved || row.encoding.accepts(value, 0))
+                    .is_none_or(|row| row.access == Permission::Reserved || row.encoding.accepts(value, 0))
             })
         })
     }
@@ -126,7 +126,7 @@ pub fn timeout(poll: Duration) -> Duration {
 /// The link's health, as `/api/status` and the page show it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct Status {
+pub struct Health {
     /// The controller in force (`None`: no link).
     pub target: Option<RobotLink>,
     /// The link is up: connected, and fewer than [`FAILED_POLLS_FOR_DOWN`]
@@ -145,7 +145,7 @@ pub struct Status {
 /// The mutable part of [`Link`].
 #[derive(Clone, Copy, Debug)]
 struct State {
-    status: Status,
+    status: Health,
     poll: Duration,
     failed_in_a_row: u8,
 }
@@ -159,7 +159,7 @@ pub struct Link {
 
 impl core::fmt::Debug for Link {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.debug_struct("Link").field("status", &self.status()).finish_non_exhaustive()
+        f.debug_struct("Link").field("status", &self.health()).finish_non_exhaustive()
     }
 }
 
@@ -172,7 +172,7 @@ impl Default for Link {
 impl Link {
     /// No link set, down, nothing counted.
     pub const fn new() -> Self {
-        let status = Status { target: None, up: false, connected: false, polls: 0, errors: 0, last_ok: None };
+        let status = Health { target: None, up: false, connected: false, polls: 0, errors: 0, last_ok: None };
         let state = State { status, poll: Duration::from_millis(100), failed_in_a_row: FAILED_POLLS_FOR_DOWN };
         Self { state: Mutex::new(RefCell::new(state)), changed: Signal::new() }
     }
@@ -200,7 +200,7 @@ impl Link {
     }
 
     /// The link's health now.
-    pub fn status(&self) -> Status {
+    pub fn health(&self) -> Health {
         self.state.lock(|state| state.borrow().status)
     }
 
@@ -283,7 +283,7 @@ impl Link {
 }
 
 /// A board's own robot source, kept off the robot's points while a link is
-/// set (the link wins; DEVICE.md section 4).
+/// set (the link wins; docs/robot-link.md).
 #[derive(Debug)]
 pub struct Gated<'a, R> {
     link: &'a Link,
