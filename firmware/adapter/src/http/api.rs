@@ -185,18 +185,28 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
                 out.text(",\"rebooting\":true}}");
                 return Ok((Reply::new(Status::ACCEPTED), Some(Action::Reboot)));
             }
-            Err(Refused::Source(error)) => return Err(error),
-            Err(Refused::Update(error)) => match super::update_refusal(error) {
-                super::FirmwareRefusal::Invalid(message) => refusal(out, Status::BAD_REQUEST, "firmware", message),
-                super::FirmwareRefusal::Storage => refusal(
-                    out,
-                    Status::INTERNAL_SERVER_ERROR,
-                    "firmware",
-                    "the update partition failed; nothing changed",
-                ),
-                super::FirmwareRefusal::Unsupported => no_updates(out),
-            },
-            Err(Refused::Unsupported) => no_updates(out),
+            Err(Refused::Source(error)) => {
+                warn!("update: refused: the upload broke off: {:?}", error);
+                return Err(error);
+            }
+            Err(Refused::Update(error)) => {
+                let refused = super::update_refusal(error);
+                warn!("update: refused: {:?}", refused);
+                match refused {
+                    super::FirmwareRefusal::Invalid(message) => refusal(out, Status::BAD_REQUEST, "firmware", message),
+                    super::FirmwareRefusal::Storage => refusal(
+                        out,
+                        Status::INTERNAL_SERVER_ERROR,
+                        "firmware",
+                        "the update partition failed; nothing changed",
+                    ),
+                    super::FirmwareRefusal::Unsupported => no_updates(out),
+                }
+            }
+            Err(Refused::Unsupported) => {
+                warn!("update: refused: {:?}", super::FirmwareRefusal::Unsupported);
+                no_updates(out)
+            }
         };
         Ok((reply, None))
     }

@@ -143,11 +143,8 @@ impl<M: RawMutex, DFU: NorFlash, STATE: NorFlash> BoardUpdate<M, DFU, STATE> {
     pub async fn receive<S: Source>(&self, source: &mut S) -> Result<crate::io::Version, Refused<S::Error>> {
         let Some(updater) = self.updater.try_get() else { return Err(Refused::Unsupported) };
         let received = updater.lock().await.receive(source).await;
-        match &received {
-            Ok(_version) => info!("update: {:?} received and armed; rebooting into it", _version),
-            Err(Refused::Update(_error)) => warn!("update: refused: {:?}", _error),
-            Err(Refused::Source(_)) => warn!("update: the upload broke off"),
-            Err(Refused::Unsupported) => {}
+        if let Ok(_version) = &received {
+            info!("update: {:?} received and armed; rebooting into it", _version);
         }
         received
     }
