@@ -221,18 +221,10 @@ macro_rules! program {
                 let Program { stack, settings, device, server, names, .. } = program;
                 spawner.spawn(tasks::net(runner)?);
                 spawner.spawn(tasks::link(stack, settings, server, names)?);
-                spawner.spawn(tasks::refresh(device, inputs, robot)?);
-                #[cfg(feature = "robot-link")]
-                spawner.spawn(tasks::robot_link(stack, device)?);
-                for slot in 0..$crate::server::SOCKET_POOL {
-                    spawner.spawn(tasks::modbus(stack, server, slot)?);
-                }
-                #[cfg(feature = "http")]
-                if let Some(api) = program.api {
-                    for _ in 0..$crate::http::MAX_HTTP_CONNECTIONS {
-                        spawner.spawn(tasks::http(stack, api)?);
-                    }
-                }
+                // mDNS's socket before the listeners' (as the boards had it):
+                // smoltcp walks the sockets in order on every poll, and the
+                // MCU bench measured a request 68 instructions dearer with
+                // it last.
                 #[cfg(feature = "mdns")]
                 {
                     let services = $crate::mdns::Services {
@@ -245,6 +237,18 @@ macro_rules! program {
                         http_port: None,
                     };
                     spawner.spawn(tasks::mdns(stack, names, services)?);
+                }
+                spawner.spawn(tasks::refresh(device, inputs, robot)?);
+                #[cfg(feature = "robot-link")]
+                spawner.spawn(tasks::robot_link(stack, device)?);
+                for slot in 0..$crate::server::SOCKET_POOL {
+                    spawner.spawn(tasks::modbus(stack, server, slot)?);
+                }
+                #[cfg(feature = "http")]
+                if let Some(api) = program.api {
+                    for _ in 0..$crate::http::MAX_HTTP_CONNECTIONS {
+                        spawner.spawn(tasks::http(stack, api)?);
+                    }
                 }
                 Ok(())
             }
