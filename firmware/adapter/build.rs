@@ -129,10 +129,62 @@ mod page {
     pub fn build() -> Result<(), Box<dyn Error>> {
         println!("cargo::rerun-if-changed={SOURCE}");
         let html = std::fs::read_to_string(SOURCE).map_err(|e| format!("{SOURCE}: {e}"))?;
-        let served = gzip(strip(&html).as_bytes())?;
-        let out = PathBuf::from(std::env::var("OUT_DIR")?).join("page.html.gz");
+        let stripped = strip(&html);
+        let served = gzip(stripped.as_bytes())?;
+        let out_dir = PathBuf::from(std::env::var("OUT_DIR")?);
+        let out = out_dir.join("page.html.gz");
         std::fs::write(&out, served).map_err(|e| format!("{}: {e}", out.display()))?;
+        let policy = content_security_policy(&stripped)?;
+        let out = out_dir.join("page_csp.txt");
+        std::fs::write(&out, policy).map_err(|e| format!("{}: {e}", out.display()))?;
         Ok(())
+    }
+
+    /// The `Content-Security-Policy` every response carries: nothing from
+    /// anywhere (`default-src 'none'`) but the page's own one inline script
+    /// and one inline style, named by their SHA-256 as served (CSP level 2),
+    /// and connections to the device itself; no framing, no form posts, no
+    /// `<base>`. A script or style that anything injects has another hash
+    /// and does not run.
+    fn content_security_policy(page: &str) -> Result<String, Box<dyn Error>> {
+        let script = between(page, "<script>", "</script>")?;
+        let style = between(page, "<style>", "</style>")?;
+        Ok(format!(
+            "default-src 'none'; script-src 'sha256-{}'; style-src 'sha256-{}'; connect-src 'self'; \
+             img-src 'self'; form-action 'none'; frame-ancestors 'none'; base-uri 'none'",
+            base64(&sha256(script.as_bytes())),
+            base64(&sha256(style.as_bytes())),
+        ))
+    }
+
+    /// The text between the only `open` and its `close`.
+    fn between<'a>(page: &'a str, open: &str, close: &str) -> Result<&'a str, Box<dyn Error>> {
+        let (_, rest) = page.split_once(open).ok_or_else(|| format!("{SOURCE}: no {open}"))?;
+        let (inside, rest) = rest.split_once(close).ok_or_else(|| format!("{SOURCE}: no {close}"))?;
+        if rest.contains(open) {
+            return Err(format!("{SOURCE}: more than one {open}: the policy names one").into());
+        }
+        Ok(inside)
+    }
+
+    fn sha256(data: &[u8]) -> [u8; 32] {
+        use sha2::Digest as _;
+        sha2::Sha256::digest(data).into()
+    }
+
+    /// Base64 (RFC 4648 section 4), padded.
+    fn base64(data: &[u8]) -> String {
+        const TABLE: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+        let mut out = String::new();
+        for chunk in data.chunks(3) {
+            let n = chunk.iter().enumerate().fold(0u32, |n, (i, &b)| n | u32::from(b) << (16 - 8 * i));
+            for i in 0..4 {
+                let sextet = (n >> (18 - 6 * i)) & 63;
+                let digit = TABLE.get(sextet as usize).map_or('=', |&b| char::from(b));
+                out.push(if i <= chunk.len() { digit } else { '=' });
+            }
+        }
+        out
     }
 
     /// The page without indentation, blank lines or `//` comment lines (the

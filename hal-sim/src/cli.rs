@@ -378,6 +378,12 @@ mod tests {
         fails(&["--tap", "t", "--ip", "none"], "`--ip` required when the mode is static");
         let nine = (1..=9).map(|i| format!("10.0.0.{i}")).collect::<Vec<_>>().join(",");
         fails(&["--tap", "t", "--allow", &nine], "up to 8");
+        // A leading zero (octal to many parsers) in any address; an empty
+        // allow-list, which is not `any`.
+        fails(&["--tap", "t", "--ip", "198.018.0.2/24"], "`--ip` must be");
+        fails(&["--tap", "t", "--gateway", "198.18.0.01"], "an IPv4 address");
+        fails(&["--tap", "t", "--allow", "010.0.0.0/8"], "networks");
+        fails(&["--tap", "t", "--allow-write", ""], "needs a value");
     }
 
     #[test]

@@ -21,6 +21,11 @@ const _: () = assert!(PAGE.len() <= MAX_PAGE_LEN, "the page is over 24 KiB as se
 
 pub const CONTENT_TYPE: &str = "text/html; charset=utf-8";
 
+/// The `Content-Security-Policy` every response carries (build.rs writes
+/// it): nothing loads or runs but the page's own script and style, named
+/// by their SHA-256, and connections to the device itself.
+pub const CONTENT_SECURITY_POLICY: &str = include_str!(concat!(env!("OUT_DIR"), "/page_csp.txt"));
+
 /// The `Content-Encoding` of [`PAGE`].
 pub const ENCODING: &str = "gzip";
 

@@ -46,8 +46,19 @@ pub struct Request<'b> {
     pub authorization: Option<&'b [u8]>,
     /// The `Accept-Encoding` field's value (the last one, if sent twice).
     pub accept_encoding: Option<&'b [u8]>,
+    /// The `Host` field's value.
+    pub host: Option<&'b [u8]>,
+    /// The `Content-Type` field's value.
+    pub content_type: Option<&'b [u8]>,
+    /// The `Origin` field's value.
+    pub origin: Option<&'b [u8]>,
     pub body: &'b [u8],
 }
+
+/// The fields a request may carry once only: a second one is a 400, not
+/// "the last one wins" (a wrong password then a right one, two hosts, two
+/// lengths: which one a proxy on the way read is anyone's guess).
+const SINGLE_FIELDS: [&[u8]; 5] = [b"authorization", b"host", b"content-length", b"content-type", b"origin"];
 
 /// What a head says about the body that follows it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -215,22 +226,40 @@ fn trim_cr(line: &[u8]) -> &[u8] {
 fn parse(head: &[u8]) -> Result<Head<'_>, Error> {
     let mut lines = head.split(|&b| b == b'\n').map(trim_cr);
     let (method, path) = request_line(lines.next().unwrap_or_default()).ok_or(Error::BadRequest)?;
-    let mut request = Request { method, path, authorization: None, accept_encoding: None, body: &[] };
+    let mut request = Request {
+        method,
+        path,
+        authorization: None,
+        accept_encoding: None,
+        host: None,
+        content_type: None,
+        origin: None,
+        body: &[],
+    };
     let mut content_length = None;
+    let mut seen = [false; SINGLE_FIELDS.len()];
     for line in lines.take_while(|line| !line.is_empty()) {
         let (name, value) = field(line).ok_or(Error::BadRequest)?;
-        if name.eq_ignore_ascii_case(b"content-length") {
-            let length = decimal(value).ok_or(Error::BadRequest)?;
-            if content_length.is_some_and(|before| before != length) {
-                return Err(Error::BadRequest);
+        if let Some(index) = SINGLE_FIELDS.iter().position(|single| name.eq_ignore_ascii_case(single)) {
+            match seen.get_mut(index) {
+                Some(seen) if !*seen => *seen = true,
+                _ => return Err(Error::BadRequest),
             }
-            content_length = Some(length);
+        }
+        if name.eq_ignore_ascii_case(b"content-length") {
+            content_length = Some(decimal(value).ok_or(Error::BadRequest)?);
         } else if name.eq_ignore_ascii_case(b"transfer-encoding") {
             return Err(Error::BadRequest);
         } else if name.eq_ignore_ascii_case(b"authorization") {
             request.authorization = Some(value);
         } else if name.eq_ignore_ascii_case(b"accept-encoding") {
             request.accept_encoding = Some(value);
+        } else if name.eq_ignore_ascii_case(b"host") {
+            request.host = Some(value);
+        } else if name.eq_ignore_ascii_case(b"content-type") {
+            request.content_type = Some(value);
+        } else if name.eq_ignore_ascii_case(b"origin") {
+            request.origin = Some(value);
         }
     }
     Ok(Head { request, content_length: content_length.unwrap_or(0) })
@@ -321,6 +350,30 @@ mod tests {
     }
 
     #[test]
+    fn a_field_that_may_come_once_and_comes_twice_is_a_bad_request() {
+        for name in ["Authorization", "Host", "Content-Length", "Content-Type", "Origin"] {
+            let once = format!("PUT /x HTTP/1.1\r\n{name}: 1\r\nX-Other: 2\r\n\r\n");
+            assert!(head(&once).is_ok(), "{name} once");
+            // Twice, the second in other capitals, with the same or another value.
+            for second in ["1", "2"] {
+                let twice = format!("PUT /x HTTP/1.1\r\n{name}: 1\r\n{}: {second}\r\n\r\n", name.to_uppercase());
+                assert_eq!(head(&twice), Err(Error::BadRequest), "{twice:?}");
+            }
+        }
+        let parsed = head(
+            "GET / HTTP/1.1\r\nHost: 10.0.0.1:80\r\nOrigin: http://10.0.0.1\r\nContent-Type: application/json\r\n\r\n",
+        )
+        .unwrap()
+        .request;
+        assert_eq!(parsed.host, Some(&b"10.0.0.1:80"[..]));
+        assert_eq!(parsed.origin, Some(&b"http://10.0.0.1"[..]));
+        assert_eq!(parsed.content_type, Some(&b"application/json"[..]));
+        // Fields a client may repeat are still taken: the last one.
+        let accept = head("GET / HTTP/1.1\r\nAccept-Encoding: br\r\nAccept-Encoding: gzip\r\n\r\n").unwrap();
+        assert_eq!(accept.request.accept_encoding, Some(&b"gzip"[..]));
+    }
+
+    #[test]
     fn header_fields_are_read_without_case_and_trimmed() {
         let text =
             "PUT /x HTTP/1.1\r\nauthorization:  Basic abc \t\r\nACCEPT-ENCODING: gzip\r\nContent-length: 12\r\n\r\n";
@@ -352,7 +405,7 @@ mod tests {
             assert_eq!(length(bad), Err(Error::BadRequest), "{bad:?}");
         }
         let twice = "PUT / HTTP/1.1\r\nContent-Length: 2\r\nContent-Length: 2\r\n\r\n";
-        assert_eq!(head(twice).map(|h| h.content_length), Ok(2));
+        assert_eq!(head(twice), Err(Error::BadRequest), "even the same length twice");
         let differ = "PUT / HTTP/1.1\r\nContent-Length: 2\r\nContent-Length: 3\r\n\r\n";
         assert_eq!(head(differ), Err(Error::BadRequest));
     }

@@ -46,9 +46,19 @@ pub struct Response<'a> {
     pub body: &'a [u8],
 }
 
+/// The fields every response carries that a browser honours: no framing
+/// (no clickjacking of the page's buttons), no guessing at content types,
+/// no `Referer` to other sites, and the page's content security policy.
+const SECURITY_FIELDS: [(&str, &str); 4] = [
+    ("X-Frame-Options", "DENY"),
+    ("X-Content-Type-Options", "nosniff"),
+    ("Referrer-Policy", "no-referrer"),
+    ("Content-Security-Policy", super::page::CONTENT_SECURITY_POLICY),
+];
+
 /// Room for the longest head: the status line and the fields, the longest
-/// reason phrase and extra field included.
-pub const RESPONSE_HEAD_LEN: usize = 256;
+/// reason phrase and extra field included, and the security fields.
+pub const RESPONSE_HEAD_LEN: usize = 256 + 64 + super::page::CONTENT_SECURITY_POLICY.len();
 
 /// Writes `response` to `writer`, whole by [`WRITE_TIMEOUT`] from now; its
 /// head is formatted in `head` (at least [`RESPONSE_HEAD_LEN`] bytes: the
@@ -64,7 +74,7 @@ pub async fn write<W: Write>(writer: &mut W, response: &Response<'_>, head: &mut
     out.text("\r\nContent-Length: ");
     out.number(response.body.len());
     out.text("\r\nCache-Control: no-store\r\nConnection: close\r\n");
-    if let Some((name, value)) = response.header {
+    for (name, value) in SECURITY_FIELDS.into_iter().chain(response.header) {
         out.text(name);
         out.text(": ");
         out.text(value);

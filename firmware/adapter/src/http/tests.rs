@@ -111,6 +111,68 @@ fn the_page_is_served_gzipped_from_flash_to_a_client_that_takes_gzip() {
     }
 }
 
+/// Every response, the page's, the API's and a refusal's, carries the
+/// fields a browser honours; the policy names the page's one script and
+/// one style by the SHA-256 of their text as served, and nothing else runs.
+#[test]
+fn every_response_carries_the_security_fields() {
+    use sha2::Digest as _;
+    let clock = Clock::take();
+    let http = api();
+    let page = send(http, &clock, "GET", "/", "Accept-Encoding: gzip\r\n", "");
+    let responses = [
+        page.clone(),
+        get(http, &clock, "/api/status"),
+        get(http, &clock, "/nowhere"),
+        exchange(http, &clock, Some(CLIENT), b"NOT HTTP\r\n\r\n").0.unwrap(),
+    ];
+    let html = page::tests::decompressed(&page.body);
+    let hash = |open: &str, close: &str| {
+        let inside = html.split_once(open).unwrap().1.split_once(close).unwrap().0;
+        let digest = sha2::Sha256::digest(inside.as_bytes());
+        format!("'sha256-{}'", base64(&digest))
+    };
+    let policy = format!(
+        "default-src 'none'; script-src {}; style-src {}; connect-src 'self'; img-src 'self'; form-action 'none'; \
+         frame-ancestors 'none'; base-uri 'none'",
+        hash("<script>", "</script>"),
+        hash("<style>", "</style>")
+    );
+    for response in &responses {
+        assert_eq!(response.header("x-frame-options"), Some("DENY"), "{}", response.head);
+        assert_eq!(response.header("x-content-type-options"), Some("nosniff"));
+        assert_eq!(response.header("referrer-policy"), Some("no-referrer"));
+        assert_eq!(response.header("content-security-policy"), Some(policy.as_str()));
+    }
+    assert!(
+        !html.contains(" onclick=") && !html.contains(" style="),
+        "no inline handler or style: the policy blocks them"
+    );
+}
+
+/// Base64 (RFC 4648), padded: the tests' own, apart from build.rs's.
+fn base64(data: &[u8]) -> String {
+    let table = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut bits = 0u32;
+    let mut held = 0;
+    let mut out = String::new();
+    for &byte in data {
+        bits = bits << 8 | u32::from(byte);
+        held += 8;
+        while held >= 6 {
+            held -= 6;
+            out.push(char::from(table[(bits >> held & 63) as usize]));
+        }
+    }
+    if held > 0 {
+        out.push(char::from(table[(bits << (6 - held) & 63) as usize]));
+    }
+    while !out.len().is_multiple_of(4) {
+        out.push('=');
+    }
+    out
+}
+
 #[test]
 fn the_settings_document_has_every_field_grouped_and_no_secret() {
     let clock = Clock::take();
@@ -271,6 +333,45 @@ fn changes_need_the_password_once_one_is_set() {
     assert_eq!(control.settings().modbus.unit_id, Some(3));
     // Reading never needs it.
     assert_eq!(get(http, &clock, "/api/status").json()["admin"]["password_set"], true);
+}
+
+/// Credentials, lengths, hosts, types and origins come once: a second
+/// `Authorization` (a wrong password, then the right one) is a 400, not
+/// "the last one wins", and nothing changes.
+#[test]
+fn a_repeated_authorization_is_refused_and_changes_nothing() {
+    let clock = Clock::take();
+    let http = api();
+    let control = http.control();
+    embassy_futures::block_on(control.set_password(b"s3cret-pass")).unwrap();
+    let body = r#"{"modbus": {"unit_id": 3}}"#;
+    let headers = format!("{}{}", basic("guess-1234"), basic("s3cret-pass"));
+    let (response, result) = exchange(http, &clock, Some(CLIENT), &request("PUT", "/api/settings", &headers, body));
+    assert_eq!((response.unwrap().status, result), (400, Err(Error::BadRequest)));
+    assert_eq!(control.settings().modbus.unit_id, None);
+    assert_eq!(saved(http), 1, "the password's record alone");
+    let response = send(http, &clock, "PUT", "/api/settings", &basic("s3cret-pass"), body);
+    assert_eq!(response.status, 200, "once: taken");
+}
+
+/// An empty allow-list is not `any`: clearing the field would open the
+/// device to everyone; and no address is read with a leading zero.
+#[test]
+fn an_empty_allow_list_and_an_octal_looking_address_are_refused() {
+    let clock = Clock::take();
+    let http = api();
+    let rule = "any, or up to 8 comma-separated networks such as 192.168.1.0/24,10.0.0.9 (empty is refused: write any)";
+    for field in ["allow_write", "allow_connect"] {
+        let response = put_settings(http, &clock, &format!(r#"{{"modbus": {{"{field}": ""}}}}"#));
+        assert_eq!(response.status, 400, "{field}");
+        assert_eq!(response.json(), json!({"errors": {format!("modbus.{field}"): rule}}));
+        let response = put_settings(http, &clock, &format!(r#"{{"modbus": {{"{field}": "198.018.0.0/16"}}}}"#));
+        assert_eq!(response.status, 400, "{field}: a leading zero");
+    }
+    let response = put_settings(http, &clock, r#"{"network": {"mode": "static", "address": "198.018.0.2/24"}}"#);
+    assert_eq!(response.status, 400);
+    assert_eq!(saved(http), 0);
+    assert_eq!(put_settings(http, &clock, r#"{"modbus": {"allow_write": "any"}}"#).status, 200, "any, written out");
 }
 
 #[test]

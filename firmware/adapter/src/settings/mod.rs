@@ -518,12 +518,12 @@ fields! {
     /// Who may connect.
     ModbusAllowConnect: modbus.allow_connect, Text, AtOnce,
         env "MODBUS_ALLOW_CONNECT", flag "allow",
-        rule "any, or up to 8 comma-separated networks such as 192.168.1.0/24,10.0.0.9",
+        rule "any, or up to 8 comma-separated networks such as 192.168.1.0/24,10.0.0.9 (empty is refused: write any)",
         |text| parse::allow_list(text);
     /// Who may write.
     ModbusAllowWrite: modbus.allow_write, Text, AtOnce,
         env "MODBUS_ALLOW_WRITE", flag "allow-write",
-        rule "any, or up to 8 comma-separated networks such as 192.168.1.0/24,10.0.0.9",
+        rule "any, or up to 8 comma-separated networks such as 192.168.1.0/24,10.0.0.9 (empty is refused: write any)",
         |text| parse::allow_list(text);
     /// The communication watchdog's timeout.
     WatchdogTimeout: watchdog.timeout_ms, Number, AtOnce,

@@ -122,7 +122,9 @@ pub const fn number_suffix(
     }
 }
 
-/// Dotted-quad IPv4 address, such as `192.168.1.50`.
+/// Dotted-quad IPv4 address, such as `192.168.1.50`. An octet with a
+/// leading zero (`198.018.0.1`) is refused: many parsers read it as octal,
+/// so it would not name the same address everywhere.
 pub const fn ipv4(text: &[u8]) -> Option<[u8; 4]> {
     let mut rest = text;
     let mut address = 0u32;
@@ -132,6 +134,9 @@ pub const fn ipv4(text: &[u8]) -> Option<[u8; 4]> {
             Some((octet, tail)) => (octet, tail, false),
             None => (rest, &[] as &[u8], true),
         };
+        if let [b'0', _, ..] = octet {
+            return None;
+        }
         let value = match decimal_bytes(octet) {
             Some(value) if value <= 255 && octet.len() <= 3 => value,
             _ => return None,
@@ -256,9 +261,14 @@ pub const fn network(text: &[u8]) -> Option<Network> {
     }
 }
 
-/// An allow-list: `any` (or empty: everyone), or up to 8 comma-separated networks.
+/// An allow-list: `any` (everyone), or up to 8 comma-separated networks.
+/// An empty list is refused, not read as `any`: an operator who clears the
+/// field must not open the device to everyone without saying so.
 pub const fn allow_list(text: &str) -> Result<Option<AllowList>, Invalid> {
-    if text.is_empty() || is(text, "any") {
+    if text.is_empty() {
+        return Err(Invalid);
+    }
+    if is(text, "any") {
         return Ok(None);
     }
     let mut list = AllowList::EMPTY;
@@ -294,6 +304,11 @@ mod tests {
         {
             assert_eq!(ipv4(bad.as_bytes()), None, "{bad:?}");
         }
+        // A leading zero (octal to many parsers) in any octet: refused.
+        for octal in ["198.018.0.1", "010.0.0.1", "1.2.3.04", "1.2.00.4", "00.0.0.0"] {
+            assert_eq!(ipv4(octal.as_bytes()), None, "{octal:?}");
+        }
+        assert_eq!(ipv4(b"10.0.0.100"), Some([10, 0, 0, 100]), "a zero that is not leading");
     }
 
     #[test]
@@ -333,6 +348,8 @@ mod tests {
         assert!(list.allows([192, 168, 1, 77]) && list.allows([10, 0, 0, 9]) && !list.allows([10, 0, 0, 8]));
         assert!(allow_list("0.0.0.0/0").unwrap().unwrap().allows([8, 8, 8, 8]));
         assert_eq!(allow_list("any"), Ok(None));
+        assert_eq!(allow_list(""), Err(Invalid), "empty is not any: it must be written out");
+        assert!(allow_list("10.0.0.07").is_err(), "a leading zero");
         let nine = "1.0.0.1,1.0.0.2,1.0.0.3,1.0.0.4,1.0.0.5,1.0.0.6,1.0.0.7,1.0.0.8,1.0.0.9";
         for bad in ["10.0.0.0/33", "10.0.0.0/8,", ",10.0.0.0/8", "10.0.0", nine] {
             assert!(allow_list(bad).is_err(), "{bad:?}");
