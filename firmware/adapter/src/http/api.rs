@@ -345,7 +345,7 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
         Reply::new(Status::OK)
     }
 
-    /// `PUT /api/password`: `{"password": "..."}`, 8-64 bytes.
+    /// `PUT /api/password`: `{"password": "..."}`, 8-64 bytes, no control character.
     async fn put_password(&self, body: &[u8], out: &mut Out<'_>) -> Reply {
         let _change = self.http.changes.lock().await;
         let mut password = [0u8; MAX_PASSWORD_LEN];
@@ -360,6 +360,9 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
             None => report.add(Key::Name("password"), "required"),
             Some(len) if !(MIN_PASSWORD_LEN..=MAX_PASSWORD_LEN).contains(&len) => {
                 report.add(Key::Name("password"), rule)
+            }
+            Some(len) if crate::storage::check_password(password.get(..len).unwrap_or_default()).is_err() => {
+                report.add(Key::Name("password"), "no control characters (NUL, tab, newline, DEL)")
             }
             Some(_) => {}
         }

@@ -412,6 +412,8 @@ fn the_password_is_set_first_freely_then_only_with_the_current_one() {
         (r#"{"password": 12345678}"#, json!({"password": "must be a string"})),
         (r#"{}"#, json!({"password": "required"})),
         (r#"{"password": "12345678", "user": "root"}"#, json!({"user": "unknown field"})),
+        (r#"{"password": "12345678\u0000"}"#, json!({"password": "no control characters (NUL, tab, newline, DEL)"})),
+        (r#"{"password": "1234\t5678"}"#, json!({"password": "no control characters (NUL, tab, newline, DEL)"})),
     ] {
         let response = send(http, &clock, "PUT", "/api/password", "", body);
         assert_eq!(response.status, 400, "{body}");
@@ -426,6 +428,9 @@ fn the_password_is_set_first_freely_then_only_with_the_current_one() {
     let again = r#"{"password": "n3w-password"}"#;
     assert_eq!(send(http, &clock, "PUT", "/api/password", "", again).status, 401);
     let current = basic(&"é".repeat(32));
+    // The password with a NUL after it: HMAC's padding would have let it in.
+    let padded = basic(&format!("{}\0", "é".repeat(32)));
+    assert_eq!(send(http, &clock, "PUT", "/api/password", &padded, again).status, 401);
     assert_eq!(send(http, &clock, "PUT", "/api/password", &current, again).status, 200);
     assert!(embassy_futures::block_on(control.verify_password(b"n3w-password")));
     assert_eq!(get(http, &clock, "/api/settings").json()["admin"]["password_set"], true);
