@@ -11,7 +11,8 @@
 //!   body is JSON;
 //! - the settings change only through a `PUT /api/settings` answered 200,
 //!   from an address `allow_write` admits, with the password when one is
-//!   set, and then to what the response shows; a refused one (any other
+//!   set, typed as JSON (a page of another site cannot), and then to what
+//!   the response shows; a refused one (any other
 //!   status) changes nothing and saves nothing;
 //! - the password, a reboot, a factory reset, a blink happen only through
 //!   their own endpoint, answered 200 or 202, under the same conditions.
@@ -237,7 +238,12 @@ pub fn http(data: &[u8]) {
     // An upper bound on who may change things: the credentials anywhere
     // in the stream, even split by NUL bytes (the server refuses those).
     let without_nul: Vec<u8> = input.stream.iter().copied().filter(|&b| b != 0).collect();
-    let may_change = !flag(HTTP_OUTSIDE) && (password.is_none() || contains(&without_nul, credentials().as_bytes()));
+    // And a change says it is JSON (an update file, octet-stream): what a
+    // page of another site cannot send without a preflight.
+    let lower = input.stream.to_ascii_lowercase();
+    let typed = contains(&lower, b"application/json") || contains(&lower, b"application/octet-stream");
+    let may_change =
+        !flag(HTTP_OUTSIDE) && typed && (password.is_none() || contains(&without_nul, credentials().as_bytes()));
 
     // The password: changed when its set state did, or the one set no longer verifies.
     let password_changed = control.password_set() != password.is_some()

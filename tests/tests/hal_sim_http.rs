@@ -35,6 +35,8 @@ fn ok(reply: Reply) -> Value {
     reply.json()
 }
 
+/// What every change sends: the device refuses any other type (docs/http-api.md).
+const JSON: &str = "Content-Type: application/json";
 #[test]
 fn status_and_settings_have_their_shape() {
     let sim = HalSim::start(&["--robot", "idle"]);
@@ -137,7 +139,7 @@ fn a_password_and_allow_write_guard_changes() {
     assert_eq!(refused.status, 403, "{}", refused.body);
     let from_3 = ["--interface", "198.18.0.3", "-u"];
     let credentials = format!("admin:{PASSWORD}");
-    let put = ["-X", "PUT", "--data-binary", r#"{"modbus": {"idle_timeout_s": 50}}"#];
+    let put = ["-X", "PUT", "-H", JSON, "--data-binary", r#"{"modbus": {"idle_timeout_s": 50}}"#];
     let args: Vec<&str> = from_3.iter().copied().chain([credentials.as_str()]).chain(put).collect();
     assert_eq!(ok(sim.http("/api/settings", &args))["modbus"]["idle_timeout_s"], 50);
     let without_password: Vec<&str> = ["--interface", "198.18.0.3"].into_iter().chain(put).collect();
@@ -166,7 +168,7 @@ fn settings_and_password_survive_a_restart_and_a_reboot() {
 
     // A reboot: the same process executes itself again and reads the file.
     let pid = sim.pid();
-    let reboot = sim.http("/api/reboot", &["-X", "POST", "-u", &format!("admin:{PASSWORD}")]);
+    let reboot = sim.http("/api/reboot", &["-X", "POST", "-H", JSON, "-u", &format!("admin:{PASSWORD}")]);
     assert_eq!((reboot.status, reboot.json()), (202, json!({"rebooting": true})));
     sim.wait_ready();
     assert!(sim.is_running());
@@ -181,7 +183,7 @@ fn settings_and_password_survive_a_restart_and_a_reboot() {
 
     // Locate: the control socket sees the LED blink.
     assert_eq!(sim.control("get locate"), "ok 0");
-    let locate = sim.http("/api/locate", &["-X", "POST", "-u", &format!("admin:{PASSWORD}")]);
+    let locate = sim.http("/api/locate", &["-X", "POST", "-H", JSON, "-u", &format!("admin:{PASSWORD}")]);
     assert_eq!(locate.status, 200, "{}", locate.body);
     assert_eq!(sim.control("get locate"), "ok 1");
 
@@ -235,7 +237,7 @@ fn a_power_cut_during_a_save_leaves_the_old_or_the_new_settings() {
         let body = json!({"device": {"name": new.0}, "modbus": {"idle_timeout_s": new.1}}).to_string();
         let mut curl = sim
             .curl("/api/settings")
-            .args(["-X", "PUT", "--data-binary", &body])
+            .args(["-X", "PUT", "-H", JSON, "--data-binary", &body])
             .stdout(std::process::Stdio::piped())
             .stderr(std::process::Stdio::null())
             .spawn()

@@ -266,7 +266,8 @@ fn a_power_cut_around_a_save_leaves_the_old_or_the_new_settings() {
         // The save of generation k, and the power cut a random moment after
         // the request leaves (0-15 ms: before, during or after the save).
         let mut client = Command::new("curl")
-            .args(["-s", "--max-time", "2", "-o", "/dev/null", "-X", "PUT", "--data-binary", &generation(k)])
+            .args(["-s", "--max-time", "2", "-o", "/dev/null", "-X", "PUT", "-H", "Content-Type: application/json"])
+            .args(["--data-binary", &generation(k)])
             .arg(format!("http://{}/api/settings", qemu.http_addr()))
             .stdin(Stdio::null())
             .spawn()

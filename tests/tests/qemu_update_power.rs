@@ -117,7 +117,7 @@ fn running_version(addr: SocketAddr) -> Option<String> {
 fn upload_part(addr: SocketAddr, file: &[u8], len: usize) -> TcpStream {
     let mut stream = TcpStream::connect(addr).unwrap();
     let head = format!(
-        "POST /api/firmware HTTP/1.1\r\nHost: mbio\r\nContent-Type: application/octet-stream\r\n\
+        "POST /api/firmware HTTP/1.1\r\nHost: {addr}\r\nContent-Type: application/octet-stream\r\n\
          Content-Length: {}\r\n\r\n",
         file.len()
     );

@@ -172,9 +172,16 @@ fn codec_seeds() -> Vec<Vec<u8>> {
 }
 
 /// `method path` with `headers` (each ending `\r\n`) and `body`.
+/// Sent as the device's page sends it: `Host` its address, and a change
+/// typed (JSON; an update file as octet-stream).
 fn http_request(method: &str, path: &str, headers: &str, body: &str) -> Vec<u8> {
     let length = if body.is_empty() { String::new() } else { format!("Content-Length: {}\r\n", body.len()) };
-    format!("{method} {path} HTTP/1.1\r\nHost: mbio\r\n{headers}{length}\r\n{body}").into_bytes()
+    let kind = match (method, path) {
+        ("GET", _) => "",
+        (_, "/api/firmware") => "Content-Type: application/octet-stream\r\n",
+        _ => "Content-Type: application/json\r\n",
+    };
+    format!("{method} {path} HTTP/1.1\r\nHost: 10.0.0.1\r\n{kind}{headers}{length}\r\n{body}").into_bytes()
 }
 
 fn http_seeds() -> Vec<Vec<u8>> {
@@ -204,6 +211,12 @@ fn http_seeds() -> Vec<Vec<u8>> {
         http_request("POST", "/api/firmware", "", &"F".repeat(1100)),
         http_request("POST", "/api/firmware", auth, &format!("\0{}", "x".repeat(300))),
         b"POST /api/firmware HTTP/1.1\r\nContent-Length: 9999\r\n\r\nF".to_vec(),
+        // What a page of another site sends: a simple POST, a rebinding
+        // Host, a foreign Origin.
+        b"POST /api/locate HTTP/1.1\r\nHost: 10.0.0.1\r\nContent-Type: text/plain\r\n\r\n".to_vec(),
+        b"GET /api/status HTTP/1.1\r\nHost: evil.example\r\n\r\n".to_vec(),
+        http_request("PUT", "/api/settings", "Origin: http://evil.example\r\n", r#"{"modbus": {"unit_id": 9}}"#),
+        b"GET /api/settings HTTP/1.0\r\n\r\n".to_vec(),
     ];
     let seed = |flags: u8, cuts: &[u8], stream: &[u8]| HttpInput { flags, cuts, stream }.to_bytes();
     let mut seeds: Vec<Vec<u8>> = requests.iter().map(|r| seed(0, &[], r)).collect();

@@ -10,6 +10,7 @@ use super::json::{Malformed, Out, Reader, Str, Value};
 use super::page;
 use super::request::{Incoming, Request};
 use super::response::{Response, Status};
+use super::site;
 use super::{AUTH_FAILURE_DELAY, Action, Http, LOCATE_DURATION, MAX_PASSWORD_LEN, MIN_PASSWORD_LEN, REALM_HEADER};
 use crate::control::{Controller, Platform, Refusal, RobotSource};
 use crate::io::AnalogType;
@@ -142,6 +143,13 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
         deadline: Instant,
         out: &mut Out<'_>,
     ) -> Result<(Reply, Option<Action>), super::Error> {
+        // Before anything else: the request names this device, and does
+        // not come from a page of another site.
+        let name = crate::net::DeviceName::device_name(self.control());
+        let addressed = site::check_host(&incoming.request, &name).and_then(|()| site::check_origin(&incoming.request));
+        if let Err((status, message)) = addressed {
+            return Ok((refusal(out, status, "request", message), None));
+        }
         let routed = route(incoming.request.method, incoming.request.path);
         #[cfg(feature = "update")]
         if routed == Ok(Endpoint::Firmware) {
@@ -166,6 +174,10 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
         let capacity = self.control().platform().firmware_capacity();
         if capacity == 0 {
             return Ok((no_updates(out), None));
+        }
+        if !site::has_content_type(&incoming.request, b"application/octet-stream") {
+            let message = "an update file must be sent as Content-Type: application/octet-stream";
+            return Ok((refusal(out, Status::UNSUPPORTED_MEDIA_TYPE, "request", message), None));
         }
         if incoming.content_length > capacity as u64 {
             out.text("{\"errors\":{\"firmware\":\"over ");
@@ -244,6 +256,12 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
                 return Reply::new(Status::OK);
             }
             _ => {}
+        }
+        // A change (bodyless POSTs too) says it is JSON: a page of another
+        // site cannot, without a preflight the device never grants.
+        if !site::has_content_type(request, b"application/json") {
+            let message = "a change must be sent as Content-Type: application/json";
+            return refusal(out, Status::UNSUPPORTED_MEDIA_TYPE, "request", message);
         }
         if let Err(reply) = self.authorize(request, out).await {
             return reply;

@@ -35,6 +35,7 @@ mod listener;
 pub mod page;
 pub mod request;
 mod response;
+mod site;
 
 use core::fmt;
 

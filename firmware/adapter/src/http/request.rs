@@ -52,6 +52,8 @@ pub struct Request<'b> {
     pub content_type: Option<&'b [u8]>,
     /// The `Origin` field's value.
     pub origin: Option<&'b [u8]>,
+    /// The request line says `HTTP/1.0` (which may leave `Host` out).
+    pub http10: bool,
     pub body: &'b [u8],
 }
 
@@ -225,7 +227,7 @@ fn trim_cr(line: &[u8]) -> &[u8] {
 /// Parses a whole head (ending with its empty line).
 fn parse(head: &[u8]) -> Result<Head<'_>, Error> {
     let mut lines = head.split(|&b| b == b'\n').map(trim_cr);
-    let (method, path) = request_line(lines.next().unwrap_or_default()).ok_or(Error::BadRequest)?;
+    let (method, path, http10) = request_line(lines.next().unwrap_or_default()).ok_or(Error::BadRequest)?;
     let mut request = Request {
         method,
         path,
@@ -234,6 +236,7 @@ fn parse(head: &[u8]) -> Result<Head<'_>, Error> {
         host: None,
         content_type: None,
         origin: None,
+        http10,
         body: &[],
     };
     let mut content_length = None;
@@ -265,8 +268,8 @@ fn parse(head: &[u8]) -> Result<Head<'_>, Error> {
     Ok(Head { request, content_length: content_length.unwrap_or(0) })
 }
 
-/// `METHOD SP TARGET SP HTTP/1.x`: the method and the path.
-fn request_line(line: &[u8]) -> Option<(&str, &str)> {
+/// `METHOD SP TARGET SP HTTP/1.x`: the method, the path, and whether it is 1.0.
+fn request_line(line: &[u8]) -> Option<(&str, &str, bool)> {
     let mut parts = line.split(|&b| b == b' ');
     let (method, target, version) = (parts.next()?, parts.next()?, parts.next()?);
     let tokens = |bytes: &[u8]| !bytes.is_empty() && bytes.iter().all(|&b| b.is_ascii_graphic());
@@ -275,7 +278,7 @@ fn request_line(line: &[u8]) -> Option<(&str, &str)> {
         return None;
     }
     let path = target.split(|&b| b == b'?' || b == b'#').next().unwrap_or_default();
-    Some((str::from_utf8(method).ok()?, str::from_utf8(path).ok()?))
+    Some((str::from_utf8(method).ok()?, str::from_utf8(path).ok()?, version == b"HTTP/1.0"))
 }
 
 /// `name: value`, the value trimmed of spaces and tabs.

@@ -25,6 +25,8 @@ impl Status {
     pub const NOT_FOUND: Self = Self::new(404, "Not Found");
     pub const METHOD_NOT_ALLOWED: Self = Self::new(405, "Method Not Allowed");
     pub const NOT_ACCEPTABLE: Self = Self::new(406, "Not Acceptable");
+    pub const UNSUPPORTED_MEDIA_TYPE: Self = Self::new(415, "Unsupported Media Type");
+    pub const MISDIRECTED_REQUEST: Self = Self::new(421, "Misdirected Request");
     pub const REQUEST_TIMEOUT: Self = Self::new(408, "Request Timeout");
     pub const CONTENT_TOO_LARGE: Self = Self::new(413, "Content Too Large");
     pub const HEADER_FIELDS_TOO_LARGE: Self = Self::new(431, "Request Header Fields Too Large");

@@ -263,10 +263,16 @@ pub fn exchange(
     (Response::parse(&bytes), connection.result.unwrap_or(Err(Error::Timeout)))
 }
 
-/// A request with `body` and the headers given (each ending `\r\n`).
+/// The `Host` the tests' requests name: the device's address.
+pub const HOST: &str = "10.0.0.1";
+
+/// A request with `body` and the headers given (each ending `\r\n`), as
+/// the device's page sends it: `Host` its address, and a change (any method
+/// but `GET`) as JSON.
 pub fn request(method: &str, path: &str, headers: &str, body: &str) -> Vec<u8> {
     let length = if body.is_empty() { String::new() } else { format!("Content-Length: {}\r\n", body.len()) };
-    format!("{method} {path} HTTP/1.1\r\nHost: mbio\r\n{headers}{length}\r\n{body}").into_bytes()
+    let json = if method.eq_ignore_ascii_case("GET") { "" } else { "Content-Type: application/json\r\n" };
+    format!("{method} {path} HTTP/1.1\r\nHost: {HOST}\r\n{json}{headers}{length}\r\n{body}").into_bytes()
 }
 
 /// `Authorization: Basic` for `admin` and `password`.

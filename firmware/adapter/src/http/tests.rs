@@ -5,7 +5,7 @@ use embassy_time::{Duration, Instant};
 use proptest::prelude::*;
 use serde_json::json;
 
-use super::testing::{CLIENT, Connection, Response, api, basic, exchange, request, saved};
+use super::testing::{CLIENT, Connection, HOST, Response, api, basic, exchange, request, saved};
 use super::*;
 use crate::server::testing::Clock;
 use crate::settings::{Field, Settings};
@@ -335,6 +335,53 @@ fn changes_need_the_password_once_one_is_set() {
     assert_eq!(get(http, &clock, "/api/status").json()["admin"]["password_set"], true);
 }
 
+/// What a page on another site can send, and a DNS-rebinding page's
+/// `Host`: refused before anything is done, reads included.
+#[test]
+fn a_page_of_another_site_changes_nothing_and_reads_nothing() {
+    let clock = Clock::take();
+    let http = api();
+    let raw = |method: &str, path: &str, headers: &str, body: &str| {
+        let length = format!("Content-Length: {}\r\n", body.len());
+        let bytes = format!("{method} {path} HTTP/1.1\r\n{headers}{length}\r\n{body}");
+        exchange(http, &clock, Some(CLIENT), bytes.as_bytes()).0.unwrap()
+    };
+    // A "simple" cross-site request: no preflight, so refused by its type.
+    for path in ["/api/locate", "/api/reboot", "/api/factory-reset"] {
+        for kind in ["", "Content-Type: text/plain\r\n", "Content-Type: application/x-www-form-urlencoded\r\n"] {
+            let response = raw("POST", path, &format!("Host: {HOST}\r\n{kind}"), "");
+            assert_eq!(response.status, 415, "{path} {kind:?}");
+            assert_eq!(response.json()["errors"]["request"], "a change must be sent as Content-Type: application/json");
+        }
+    }
+    let body = r#"{"modbus": {"unit_id": 7}}"#;
+    assert_eq!(raw("PUT", "/api/settings", &format!("Host: {HOST}\r\nContent-Type: text/plain\r\n"), body).status, 415);
+    // A rebinding page: another host, even for a read.
+    for path in ["/api/status", "/api/settings", "/"] {
+        let response = raw("GET", path, "Host: evil.example\r\n", "");
+        assert_eq!(response.status, 421, "{path}");
+        assert!(response.json()["errors"]["request"].as_str().unwrap().starts_with("Host must be this device"));
+    }
+    assert_eq!(raw("GET", "/api/status", "", "").status, 400, "HTTP/1.1 without Host");
+    let old = exchange(http, &clock, Some(CLIENT), b"GET /api/status HTTP/1.0\r\n\r\n").0.unwrap();
+    assert_eq!(old.status, 200, "HTTP/1.0 without Host");
+    for host in ["mbio-53494d", "MBIO-53494D.local", "127.0.0.1:8080"] {
+        assert_eq!(raw("GET", "/api/status", &format!("Host: {host}\r\n"), "").status, 200, "{host}");
+    }
+    // A page of another site, with the right type (a preflight it did not get).
+    let json = format!("Host: {HOST}\r\nContent-Type: application/json\r\n");
+    let response = raw("PUT", "/api/settings", &format!("{json}Origin: http://evil.example\r\n"), body);
+    assert_eq!(response.status, 403);
+    assert_eq!(response.json()["errors"]["request"], "a page of another site may not use this device (Origin)");
+    assert_eq!(raw("GET", "/api/status", &format!("Host: {HOST}\r\nOrigin: null\r\n"), "").status, 403);
+    assert_eq!(saved(http), 0);
+    assert_eq!(http.control().platform().located.get(), None, "never blinked");
+    // The device's own page: its origin, JSON.
+    let response = raw("PUT", "/api/settings", &format!("{json}Origin: http://{HOST}\r\n"), body);
+    assert_eq!(response.status, 200);
+    assert_eq!(saved(http), 1);
+}
+
 /// Credentials, lengths, hosts, types and origins come once: a second
 /// `Authorization` (a wrong password, then the right one) is a 400, not
 /// "the last one wins", and nothing changes.
@@ -495,7 +542,7 @@ fn unknown_paths_are_404_and_wrong_methods_405() {
 fn a_body_over_the_limit_is_refused_before_it_is_read() {
     let clock = Clock::take();
     let http = api();
-    let head = format!("PUT /api/settings HTTP/1.1\r\nContent-Length: {}\r\n\r\n", MAX_BODY_LEN + 1);
+    let head = format!("PUT /api/settings HTTP/1.1\r\nHost: {HOST}\r\nContent-Length: {}\r\n\r\n", MAX_BODY_LEN + 1);
     let mut connection = Connection::open(http, Some(CLIENT));
     connection.wire.send(head.as_bytes());
     assert!(connection.poll(), "answered at once, without waiting for the body");
@@ -516,7 +563,7 @@ fn a_body_over_the_limit_is_refused_before_it_is_read() {
         http,
         &clock,
         Some(CLIENT),
-        b"PUT /api/settings HTTP/1.1\r\nContent-Length: 18446744073709551616\r\n\r\n",
+        b"PUT /api/settings HTTP/1.1\r\nHost: 10.0.0.1\r\nContent-Length: 18446744073709551616\r\n\r\n",
     );
     assert_eq!((response.unwrap().status, result), (413, Err(Error::Limit(Limit::BodyTooLarge))));
     assert_eq!(saved(http), 0);
@@ -710,10 +757,15 @@ fn requests() -> impl Strategy<Value = Vec<u8>> {
             2 => Just("Authorization: Basic YWRtaW46MTIzNDU2Nzg=\r\n".to_string()),
             1 => Just("Content-Length: 9999\r\n".to_string()),
             1 => Just("Content-Length: 3\r\n".to_string()),
+            4 => Just(format!("Host: {HOST}\r\n")),
+            1 => Just("Host: evil.example\r\n".to_string()),
+            3 => Just("Content-Type: application/json\r\n".to_string()),
+            1 => Just("Content-Type: text/plain\r\n".to_string()),
+            1 => Just("Origin: http://evil.example\r\n".to_string()),
             4 => "X-[a-z]{1,8}: [ -~]{0,20}\r\n",
             1 => "[ -~]{0,20}\r\n",
         ],
-        0..3,
+        0..5,
     );
     (method, path, headers, body, any::<bool>()).prop_map(|(method, path, headers, body, length)| {
         let length = if length { format!("Content-Length: {}\r\n", body.len()) } else { String::new() };
@@ -777,8 +829,8 @@ mod firmware {
     }
 
     fn upload(headers: &str, file: &[u8]) -> Vec<u8> {
-        let mut bytes =
-            format!("POST /api/firmware HTTP/1.1\r\n{headers}Content-Length: {}\r\n\r\n", file.len()).into_bytes();
+        let head = "POST /api/firmware HTTP/1.1\r\nHost: 10.0.0.1\r\nContent-Type: application/octet-stream\r\n";
+        let mut bytes = format!("{head}{headers}Content-Length: {}\r\n\r\n", file.len()).into_bytes();
         bytes.extend_from_slice(file);
         bytes
     }
@@ -852,10 +904,31 @@ mod firmware {
     }
 
     #[test]
+    fn a_file_of_another_type_is_refused_before_it_is_read() {
+        let clock = Clock::take();
+        let http = api();
+        for kind in ["", "Content-Type: text/plain\r\n", "Content-Type: multipart/form-data; boundary=x\r\n"] {
+            let bytes =
+                format!("POST /api/firmware HTTP/1.1\r\nHost: {HOST}\r\n{kind}Content-Length: 10\r\n\r\n0123456789");
+            let (response, _) = exchange(http, &clock, Some(CLIENT), bytes.as_bytes());
+            let response = response.unwrap();
+            assert_eq!(response.status, 415, "{kind:?}");
+            assert_eq!(
+                response.json()["errors"]["request"],
+                "an update file must be sent as Content-Type: application/octet-stream"
+            );
+        }
+        assert!(http.control().platform().firmware_chunks.borrow().is_empty(), "nothing reached the updater");
+    }
+
+    #[test]
     fn a_file_over_the_capacity_is_refused_before_it_is_read() {
         let _clock = Clock::take();
         let http = api();
-        let head = format!("POST /api/firmware HTTP/1.1\r\nContent-Length: {}\r\n\r\n", TEST_FIRMWARE_CAPACITY + 1);
+        let head = format!(
+            "POST /api/firmware HTTP/1.1\r\nHost: {HOST}\r\nContent-Type: application/octet-stream\r\nContent-Length: {}\r\n\r\n",
+            TEST_FIRMWARE_CAPACITY + 1
+        );
         let mut connection = Connection::open(http, Some(CLIENT));
         connection.wire.send(head.as_bytes());
         assert!(connection.poll(), "answered at once, without waiting for the body");
