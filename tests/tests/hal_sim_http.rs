@@ -323,3 +323,64 @@ fn http_never_delays_modbus() {
     // The held connections are gone (the runtime closed them): HTTP serves again.
     assert_eq!(ok(sim.get("/api/status"))["device"]["model"], "hal-sim");
 }
+
+/// What a web page of another site, or a DNS-rebinding one, would send,
+/// over real TCP with curl (docs/http-api.md, "What a page of another site
+/// cannot do"): each refused with its status and nothing changed; and the
+/// fields every response carries.
+#[test]
+fn a_hostile_page_s_requests_are_refused_and_change_nothing() {
+    let sim = HalSim::start(&["--robot", "idle"]);
+    let change = r#"{"modbus": {"unit_id": 9}}"#;
+    // A "simple" request: no preflight, so refused by its type.
+    for (path, kind) in [
+        ("/api/locate", "Content-Type: text/plain"),
+        ("/api/reboot", "Content-Type: application/x-www-form-urlencoded"),
+        ("/api/factory-reset", "Content-Type: text/plain"),
+    ] {
+        let reply = sim.http(path, &["-X", "POST", "-H", kind]);
+        assert_eq!(reply.status, 415, "{path}: {}", reply.body);
+    }
+    let reply = sim.http("/api/settings", &["-X", "PUT", "-H", "Content-Type: text/plain", "--data-binary", change]);
+    assert_eq!(reply.status, 415, "{}", reply.body);
+    // curl's -d without a type is a form: refused too.
+    assert_eq!(sim.http("/api/settings", &["-X", "PUT", "-d", change]).status, 415);
+    // A rebinding page: its own domain name in Host, even to read.
+    let reply = sim.http("/api/status", &["-H", "Host: evil.example"]);
+    assert_eq!(reply.status, 421, "{}", reply.body);
+    assert_eq!(sim.http("/api/settings", &["-H", "Host: evil.example:80"]).status, 421);
+    // The device's own names are fine.
+    assert_eq!(sim.http("/api/status", &["-H", "Host: mbio-53494d.local"]).status, 200);
+    // A page of another site that got its type through: its Origin.
+    let foreign = ["-X", "PUT", "-H", JSON, "-H", "Origin: http://evil.example", "--data-binary", change];
+    assert_eq!(sim.http("/api/settings", &foreign).status, 403);
+    // Two Authorization fields: neither taken.
+    let basic = "Authorization: Basic YWRtaW46Y29ycmVjdC1ob3JzZQ=="; // admin:correct-horse
+    let twice = ["-X", "PUT", "-H", JSON, "-H", "Authorization: Basic eDp5", "-H", basic, "--data-binary", change];
+    assert_eq!(sim.http("/api/settings", &twice).status, 400);
+    // An empty allow-list, an octal-looking address, a password with a NUL.
+    for body in [r#"{"modbus": {"allow_write": ""}}"#, r#"{"modbus": {"allow_connect": "198.018.0.0/16"}}"#] {
+        assert_eq!(sim.put("/api/settings", body, None).status, 400, "{body}");
+    }
+    assert_eq!(sim.put("/api/password", r#"{"password": "correct\u0000horse"}"#, None).status, 400);
+    // Nothing changed.
+    let settings = ok(sim.get("/api/settings"));
+    assert_eq!(settings["modbus"]["unit_id"], "any");
+    assert_eq!(settings["modbus"]["allow_write"], "any");
+    assert_eq!(settings["admin"], json!({"password_set": false}));
+    assert_eq!(ok(sim.get("/api/status"))["storage"]["records"], 0, "nothing saved");
+
+    // The fields every response carries, the page's and a refusal's alike.
+    for args in [&["-H", "Accept-Encoding: gzip"][..], &["-H", "Host: evil.example"][..]] {
+        let output = sim.curl("/").args(["-o", "/dev/null", "-D", "-"]).args(args).output().unwrap();
+        let head = String::from_utf8_lossy(&output.stdout).to_lowercase();
+        for field in [
+            "x-frame-options: deny",
+            "x-content-type-options: nosniff",
+            "referrer-policy: no-referrer",
+            "content-security-policy: default-src 'none'; script-src 'sha256-",
+        ] {
+            assert!(head.contains(field), "{field} in {head}");
+        }
+    }
+}
