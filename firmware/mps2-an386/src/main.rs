@@ -151,7 +151,7 @@ fn spawn_board(spawner: Spawner, program: Program) -> Result<(), embassy_executo
         if !update::install() {
             defmt::error!("update: no updater: this image cannot confirm itself");
         }
-        spawner.spawn(confirm_task(program.stack, program.device)?);
+        spawner.spawn(confirm_task(program.stack, program.device, &program.settings.network)?);
         spawner.spawn(watchdog_task()?);
     }
     #[cfg(feature = "http")]
@@ -177,8 +177,12 @@ async fn locate_task() -> ! {
 /// Confirms this image once it serves, when it runs on trial after a swap.
 #[cfg(feature = "update")]
 #[embassy_executor::task]
-async fn confirm_task(stack: embassy_net::Stack<'static>, device: &'static adapter::device::Device<'static>) {
-    update::confirm_when_serving(stack, device).await
+async fn confirm_task(
+    stack: embassy_net::Stack<'static>,
+    device: &'static adapter::device::Device<'static>,
+    network: &'static adapter::settings::NetworkSettings,
+) {
+    update::confirm_when_serving(stack, device, network).await
 }
 
 /// Pets the bootloader's watchdog, unless this image is on trial.

@@ -17,6 +17,7 @@
 use core::sync::atomic::{AtomicBool, Ordering};
 
 use adapter::device::Device;
+use adapter::settings::NetworkSettings;
 use adapter::storage::flash::RuleFlash;
 use adapter::update::boot::BoardUpdate;
 use adapter::update::image::{self, service};
@@ -39,8 +40,6 @@ static TAKEN: AtomicBool = AtomicBool::new(false);
 #[unsafe(link_section = ".image_info")]
 static IMAGE_INFO: [u8; update::IMAGE_INFO_LEN] = update::image_info(adapter::VERSION);
 
-// The watchdog's reset, which the bootloader sets up, is the trial's limit.
-const _: () = assert!(crate::watchdog::TRIAL_LIMIT_S as u64 == adapter::update::boot::TRIAL_LIMIT_S);
 
 /// The bootloader's swap page (RuleFlash's page, as in the bootloader).
 const PAGE: u32 = 4096;
@@ -118,22 +117,28 @@ fn bootloader_check(
 }
 
 /// Reports the boot state and confirms an image on trial once it serves
-/// (`adapter::update::boot`), then pets the watchdog at once.
-pub async fn confirm_when_serving(stack: Stack<'static>, device: &'static Device<'static>) {
-    UPDATE.confirm_when_serving(stack, device, layout()).await;
+/// (`adapter::update::boot`; `network`, the settings it started with, sets
+/// the trial's limit), then pets the watchdog at once.
+pub async fn confirm_when_serving(
+    stack: Stack<'static>,
+    device: &'static Device<'static>,
+    network: &'static NetworkSettings,
+) {
+    UPDATE.confirm_when_serving(stack, device, layout(), network).await;
     if UPDATE.trial().settled() {
         crate::watchdog::pet();
     }
 }
 
-/// Pets the watchdog every [`crate::watchdog::PET_INTERVAL_MS`] once
-/// [`UPDATE`]'s trial is settled. Before the boot state is known, and on trial until
-/// the confirmation, it does not: the bootloader's watchdog expires
-/// [`crate::watchdog::EXPIRY_S`] after the start (an NMI, [`NonMaskableInt`])
-/// and resets the board [`crate::watchdog::TRIAL_LIMIT_S`] after the start.
+/// Pets the watchdog every [`crate::watchdog::PET_INTERVAL_MS`] while
+/// [`UPDATE`]'s trial lets it (`Trial::feeds_watchdog`): for good once
+/// settled, and on trial (or before the boot state is known) only within
+/// the trial's limit. Then the bootloader's watchdog expires
+/// [`crate::watchdog::EXPIRY_S`] after the last pet (an NMI,
+/// [`NonMaskableInt`]) and resets the board as long again after it.
 pub async fn pet_loop() -> ! {
     loop {
-        if UPDATE.trial().settled() {
+        if UPDATE.trial().feeds_watchdog(embassy_time::Instant::now().as_secs()) {
             crate::watchdog::pet();
         }
         embassy_time::Timer::after_millis(crate::watchdog::PET_INTERVAL_MS).await;

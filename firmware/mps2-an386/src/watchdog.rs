@@ -6,10 +6,11 @@
 //! the interrupt and reloads the counter: that is petting it.
 //!
 //! The bootloader starts it before it jumps into the image ([`start`]), so
-//! an image swapped in on trial that never confirms itself is reset
-//! [`TRIAL_LIMIT_S`] after it started, and the bootloader rolls it back.
-//! The image pets it ([`pet`]) once it is confirmed, or from the start
-//! when it was not on trial (`update::pet_loop`).
+//! an image that never pets it is reset [`RESET_S`] after it started. The
+//! image pets it ([`pet`]) for good once it is confirmed or was not on
+//! trial, and on trial only within the trial's limit (`update::pet_loop`):
+//! an image swapped in that never confirms itself is reset [`RESET_S`]
+//! after its last pet, and the bootloader rolls it back.
 //!
 //! This file is the bootloader's too (`#[path]`): one register map.
 
@@ -32,8 +33,8 @@ const CLOCK_HZ: u32 = 25_000_000;
 /// From the bootloader's start to the first expiry (the NMI); the reset
 /// comes as long again after it.
 pub const EXPIRY_S: u32 = 15;
-/// How long an image that does not pet the watchdog runs: two expiries.
-pub const TRIAL_LIMIT_S: u32 = 2 * EXPIRY_S;
+/// How long an image runs after the last pet (or the start): two expiries.
+pub const RESET_S: u32 = 2 * EXPIRY_S;
 /// How often a confirmed image pets it: well inside an expiry.
 pub const PET_INTERVAL_MS: u64 = 1_000;
 
@@ -48,7 +49,7 @@ unsafe fn write(address: usize, value: u32) {
 }
 
 /// Starts the watchdog: the NMI at [`EXPIRY_S`], the reset at
-/// [`TRIAL_LIMIT_S`], unless it is petted. The bootloader calls it last,
+/// [`RESET_S`], unless it is petted. The bootloader calls it last,
 /// before it jumps; the registers stay unlocked for the image to pet.
 pub fn start() {
     // SAFETY: the watchdog's registers, which only the bootloader (before

@@ -118,7 +118,7 @@ async fn start(spawner: Spawner) {
         if !update::install(board.flash.dfu, board.flash.state) {
             defmt::error!("update: no updater: this image cannot confirm itself");
         }
-        spawner.spawn(unwrap!(confirm_task(stack, program.device)));
+        spawner.spawn(unwrap!(confirm_task(stack, program.device, &program.settings.network)));
     }
     let config = program.server.config();
     defmt::info!("serving Modbus TCP on port {}, {} sessions", config.port, config.max_connections);
@@ -127,6 +127,10 @@ async fn start(spawner: Spawner) {
 /// Confirms this image once it serves, when it runs on trial after a swap.
 #[cfg(feature = "update")]
 #[embassy_executor::task]
-async fn confirm_task(stack: embassy_net::Stack<'static>, device: &'static adapter::device::Device<'static>) {
-    update::confirm_when_serving(stack, device).await
+async fn confirm_task(
+    stack: embassy_net::Stack<'static>,
+    device: &'static adapter::device::Device<'static>,
+    network: &'static adapter::settings::NetworkSettings,
+) {
+    update::confirm_when_serving(stack, device, network).await
 }

@@ -4,17 +4,19 @@
 //! boot state in bank 2 ([`flash::Partitions`]).
 //!
 //! After a swap the new image is on trial: `adapter::update::boot`
-//! confirms it once the network is up and the Modbus listeners serve. If it
-//! has not within [`TRIAL_LIMIT_S`] of its start, the watchdog's feeder
-//! stops ([`keeps_feeding`]) and the IWDG resets the MCU: the bootloader
-//! rolls back. An image that hangs before its feeder runs is reset by the
+//! confirms it once it has an address and the Modbus listeners serve. If
+//! it has not within the trial's limit (`adapter::update::boot::trial_limit_s`:
+//! 30 s, after the DHCP timeout in `dhcp` mode) of its start, the
+//! watchdog's feeder stops ([`keeps_feeding`]) and the IWDG resets the MCU:
+//! the bootloader rolls back. An image that hangs before its feeder runs is reset by the
 //! bootloader's 30 s watchdog, or by its own 2 s one once started.
 //!
 //! The signature check is the bootloader's (`update_image::service`): the
 //! image does not carry ed25519's 14 KiB.
 
 use adapter::device::Device;
-use adapter::update::boot::{BoardUpdate, TRIAL_LIMIT_S};
+use adapter::settings::NetworkSettings;
+use adapter::update::boot::BoardUpdate;
 use adapter::update::image::{self, service};
 use adapter::update::{self, Config, ImageLayout, SignatureError};
 use embassy_net::Stack;
@@ -67,13 +69,18 @@ pub fn install(dfu: flash::DfuFlash, state: flash::StateFlash) -> bool {
 }
 
 /// Reports the boot state and confirms an image on trial once it serves
-/// (without an updater, settles the trial flag).
-pub async fn confirm_when_serving(stack: Stack<'static>, device: &'static Device<'static>) {
-    UPDATE.confirm_when_serving(stack, device, layout()).await;
+/// (without an updater, settles the trial flag); `network`, the settings
+/// it started with, sets the trial's limit.
+pub async fn confirm_when_serving(
+    stack: Stack<'static>,
+    device: &'static Device<'static>,
+    network: &'static NetworkSettings,
+) {
+    UPDATE.confirm_when_serving(stack, device, layout(), network).await;
 }
 
-/// Whether the watchdog's feeder goes on: not when the image is on trial
-/// and has not confirmed itself within [`TRIAL_LIMIT_S`] of its start.
+/// Whether the watchdog's feeder goes on: not when the image has not
+/// settled its trial (confirmed, or not on one) within the trial's limit.
 pub fn keeps_feeding() -> bool {
-    !(UPDATE.trial().on_trial() && Instant::now().as_secs() >= TRIAL_LIMIT_S)
+    UPDATE.trial().feeds_watchdog(Instant::now().as_secs())
 }

@@ -7,7 +7,7 @@
 //! the board's watchdog feeding reads, so that an image on trial that does
 //! not confirm itself is reset and rolled back by the bootloader.
 
-use core::sync::atomic::{AtomicU8, AtomicUsize, Ordering};
+use core::sync::atomic::{AtomicU8, AtomicU32, AtomicUsize, Ordering};
 
 use embassy_net::Stack;
 use embassy_sync::blocking_mutex::raw::RawMutex;
@@ -17,6 +17,7 @@ use embedded_storage_async::nor_flash::NorFlash;
 
 use super::{BootState, Config, FirmwareStatus, ImageLayout, Updater};
 use crate::device::Device;
+use crate::settings::{NetMode, NetworkSettings};
 
 /// Where an upload's bytes come from: its chunks in order, then `None`
 /// (the HTTP API's request body, a test's bytes).
@@ -41,13 +42,29 @@ pub enum Refused<E> {
     Unsupported,
 }
 
-/// How long an image on trial has to confirm itself, from its start
-/// (docs/update.md): after that the board's watchdog resets it.
+/// How long an image on trial has to confirm itself once it could have
+/// an address (docs/update.md): the base of [`trial_limit_s`].
 pub const TRIAL_LIMIT_S: u64 = 30;
 
-/// Whether the running image is on trial, as the watchdog's feeder sees it.
+/// How long an image on trial has, from its start, to confirm itself under
+/// the network settings it starts with: [`TRIAL_LIMIT_S`], and in `dhcp`
+/// mode the DHCP timeout before it (the fallback address comes only after
+/// it, and the image confirms once it serves on whatever address it has).
+/// After that the board's watchdog resets it and the bootloader rolls back.
+pub const fn trial_limit_s(network: &NetworkSettings) -> u64 {
+    match network.mode {
+        NetMode::Dhcp => TRIAL_LIMIT_S + network.dhcp_timeout_s as u64,
+        NetMode::Static => TRIAL_LIMIT_S,
+    }
+}
+
+/// Whether the running image is on trial, as the watchdog's feeder sees it,
+/// and until when, in seconds from its start, the trial lasts.
 #[derive(Debug)]
-pub struct Trial(AtomicU8);
+pub struct Trial {
+    state: AtomicU8,
+    limit_s: AtomicU32,
+}
 
 const UNKNOWN: u8 = 0;
 const ON_TRIAL: u8 = 1;
@@ -56,29 +73,46 @@ const SETTLED: u8 = 2;
 impl Trial {
     /// Not known yet: the boot state has not been read.
     pub const fn new() -> Self {
-        Self(AtomicU8::new(UNKNOWN))
+        Self { state: AtomicU8::new(UNKNOWN), limit_s: AtomicU32::new(TRIAL_LIMIT_S as u32) }
     }
 
     /// The image is on trial: swapped in and not (yet) confirmed.
     pub fn on_trial(&self) -> bool {
-        self.0.load(Ordering::Relaxed) == ON_TRIAL
+        self.state.load(Ordering::Relaxed) == ON_TRIAL
+    }
+
+    /// When the trial ends, in seconds from the start ([`trial_limit_s`]).
+    pub fn limit_s(&self) -> u64 {
+        u64::from(self.limit_s.load(Ordering::Relaxed))
+    }
+
+    /// Whether the board's watchdog is fed at `uptime_s` seconds from the
+    /// start: always once settled; before, only within the trial's limit,
+    /// so that an image that never confirms itself (or never gets to read
+    /// its boot state) is reset and rolled back.
+    pub fn feeds_watchdog(&self, uptime_s: u64) -> bool {
+        self.settled() || uptime_s < self.limit_s()
     }
 
     /// The image is not on trial (never was, or confirmed itself), or it
     /// cannot tell and must not reset itself in a loop for it.
     pub fn settled(&self) -> bool {
-        self.0.load(Ordering::Relaxed) == SETTLED
+        self.state.load(Ordering::Relaxed) == SETTLED
     }
 
     /// No trial to wait for: the boot state says so, the image confirmed
     /// itself, or the state cannot be read (a reset every 30 s would not
     /// make that better).
     pub fn settle(&self) {
-        self.0.store(SETTLED, Ordering::Relaxed);
+        self.state.store(SETTLED, Ordering::Relaxed);
     }
 
     fn set(&self, state: BootState) {
-        self.0.store(if state == BootState::Trial { ON_TRIAL } else { SETTLED }, Ordering::Relaxed);
+        self.state.store(if state == BootState::Trial { ON_TRIAL } else { SETTLED }, Ordering::Relaxed);
+    }
+
+    fn set_limit(&self, limit_s: u64) {
+        self.limit_s.store(u32::try_from(limit_s).unwrap_or(u32::MAX), Ordering::Relaxed);
     }
 }
 
@@ -149,12 +183,20 @@ impl<M: RawMutex, DFU: NorFlash, STATE: NorFlash> BoardUpdate<M, DFU, STATE> {
         received
     }
 
-    /// Reads the boot state and the other image's version (by `layout`),
-    /// sets them on `device` and [`Self::trial`], then, once the network has
-    /// its address (the Modbus listeners are spawned before this runs),
-    /// confirms an image on trial. Without an updater: nothing to wait for
-    /// ([`Trial::settle`]).
-    pub async fn confirm_when_serving(&self, stack: Stack<'_>, device: &Device<'_>, layout: ImageLayout) {
+    /// Sets the trial's limit for `network` ([`trial_limit_s`]), reads the
+    /// boot state and the other image's version (by `layout`), sets them on
+    /// `device` and [`Self::trial`], then, once the network has an address,
+    /// whichever (DHCP's or the fallback; the Modbus listeners are spawned
+    /// before this runs), confirms an image on trial. Without an updater:
+    /// nothing to wait for ([`Trial::settle`]).
+    pub async fn confirm_when_serving(
+        &self,
+        stack: Stack<'_>,
+        device: &Device<'_>,
+        layout: ImageLayout,
+        network: &NetworkSettings,
+    ) {
+        self.trial.set_limit(trial_limit_s(network));
         let Some(updater) = self.updater.try_get() else {
             self.trial.settle();
             return;
@@ -166,6 +208,9 @@ impl<M: RawMutex, DFU: NorFlash, STATE: NorFlash> BoardUpdate<M, DFU, STATE> {
                     let previous = updater.other_image(layout).await.unwrap_or(None);
                     let capacity = u32::try_from(updater.capacity()).unwrap_or(u32::MAX);
                     info!("update: boot state {:?}, previous firmware {:?}", state, previous);
+                    if state == BootState::Trial {
+                        info!("update: on trial: confirms once it serves, within {} s of its start", self.trial.limit_s());
+                    }
                     device.set_firmware_update(FirmwareStatus { state, previous, capacity });
                     self.trial.set(state);
                 }
@@ -208,9 +253,8 @@ impl<M: RawMutex, DFU: NorFlash, STATE: NorFlash> Default for BoardUpdate<M, DFU
 mod tests {
     use super::*;
 
-    /// What the boards' watchdog feeders read: mps2 pets only once
-    /// settled, the NUCLEO stops feeding only when on trial past the limit;
-    /// before the boot state is read it is neither.
+    /// What the boards' watchdog feeders read: fed once settled, and
+    /// before that only within the trial's limit.
     #[test]
     fn the_trial_flag_follows_the_boot_state_and_the_confirmation() {
         let trial = Trial::new();
@@ -224,5 +268,31 @@ mod tests {
             trial.set(state);
             assert!(!trial.on_trial() && trial.settled(), "{state:?}");
         }
+    }
+
+    /// The trial outlasts the DHCP timeout, after which the fallback
+    /// address comes: with the defaults (dhcp, 30 s), 60 s from the start.
+    #[test]
+    fn the_trial_outlasts_the_dhcp_timeout() {
+        let mut network = crate::settings::Settings::DEFAULT.network;
+        assert_eq!((network.mode, network.dhcp_timeout_s), (NetMode::Dhcp, 30), "the defaults");
+        assert_eq!(trial_limit_s(&network), 60);
+        network.dhcp_timeout_s = 600;
+        assert_eq!(trial_limit_s(&network), 630);
+        network.mode = NetMode::Static;
+        assert_eq!(trial_limit_s(&network), TRIAL_LIMIT_S, "a static address needs no wait");
+    }
+
+    #[test]
+    fn the_watchdog_is_fed_until_the_limit_unless_settled() {
+        let trial = Trial::new();
+        assert!(trial.feeds_watchdog(0) && trial.feeds_watchdog(29), "unknown: within the base limit");
+        assert!(!trial.feeds_watchdog(30), "a boot state never read ends in a reset");
+        trial.set_limit(60);
+        trial.set(BootState::Trial);
+        assert!(trial.feeds_watchdog(59), "on trial, within the limit: the DHCP fallback has time");
+        assert!(!trial.feeds_watchdog(60), "on trial past the limit: reset, rolled back");
+        trial.settle();
+        assert!(trial.feeds_watchdog(u64::MAX), "confirmed: fed for good");
     }
 }
