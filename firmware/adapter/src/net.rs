@@ -115,24 +115,26 @@ pub async fn run<S: Service, N: DeviceName + ?Sized>(
     let mut address = false;
     // While DHCP runs with a fallback address: when the fallback applies.
     let mut fallback_at = None;
-    // The first look: a link up at start runs on the stack's initial
-    // configuration (`initial_config`, the same as below), which may
-    // already serve clients; setting it again would restart DHCP over a
-    // lease, or reset connections accepted in the meantime.
-    let mut first = true;
+    // Until the first link loss the stack runs on its initial configuration
+    // (`initial_config`, the same as below), which may already serve
+    // clients: the first link-up, whenever this loop sees it (the driver may
+    // report it between two looks), is not a link change, and setting the
+    // configuration again would restart DHCP over a lease just taken and
+    // reset the connections accepted meanwhile.
+    let mut lost = false;
     loop {
         let link_now = stack.is_link_up();
         if link_now && !link {
             info!("link up");
             fallback_at = match (settings.mode, &fallback) {
                 (NetMode::Static, Some(config)) => {
-                    if !first {
+                    if lost {
                         stack.set_config_v4(ConfigV4::Static(config.clone()));
                     }
                     None
                 }
                 (_, fallback) => {
-                    if !first {
+                    if lost {
                         stack.set_config_v4(ConfigV4::Dhcp(dhcp_config(&name.device_name())));
                     }
                     let timeout = Duration::from_secs(u64::from(settings.dhcp_timeout_s));
@@ -142,9 +144,9 @@ pub async fn run<S: Service, N: DeviceName + ?Sized>(
         } else if link && !link_now {
             warn!("link down: closing {} sessions", server.slots().open_count());
             server.slots().evict_all();
+            lost = true;
         }
         link = link_now;
-        first = false;
 
         // DHCP gave nothing in time: the fallback applies (at once, so the
         // address is logged below in this same tick, before any client).

@@ -209,7 +209,10 @@ impl<M: RawMutex, DFU: NorFlash, STATE: NorFlash> BoardUpdate<M, DFU, STATE> {
                     let capacity = u32::try_from(updater.capacity()).unwrap_or(u32::MAX);
                     info!("update: boot state {:?}, previous firmware {:?}", state, previous);
                     if state == BootState::Trial {
-                        info!("update: on trial: confirms once it serves, within {} s of its start", self.trial.limit_s());
+                        info!(
+                            "update: on trial: confirms once it serves, within {} s of its start",
+                            self.trial.limit_s()
+                        );
                     }
                     device.set_firmware_update(FirmwareStatus { state, previous, capacity });
                     self.trial.set(state);
