@@ -2,7 +2,8 @@
 //! (docs/update.md, "The bootloader's signature check").
 //!
 //! ed25519's verification is about 14 KiB of code, more than the NUCLEO's
-//! image has room for within its 128 KiB. The bootloader, which has the
+//! image had room for within its 128 KiB budget of the time (docs/update.md),
+//! and it need not be in every image. The bootloader, which has the
 //! room, carries it once and puts a table of its entry points at a fixed
 //! place, [`TABLE_OFFSET`] bytes from its start (right after its vector
 //! table). The image computes the digest itself and calls the check there
