@@ -98,6 +98,51 @@ pub fn static_config(settings: &NetworkSettings) -> Option<StaticConfigV4> {
 /// closes the sessions at most this late.
 pub const LINK_POLL: Duration = Duration::from_millis(100);
 
+/// A change of the link, as the network policy acts on it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum LinkChange {
+    /// The link came up; `reconfigure`: set the address configuration
+    /// again (a fresh DHCP exchange, or the static address).
+    Up { reconfigure: bool },
+    /// The link went down: the sessions close.
+    Down,
+}
+
+/// The link as the policy saw it at its last look, and whether it has
+/// been lost since the start.
+///
+/// Until the first link loss the stack runs on its initial configuration
+/// (`initial_config`, what a link-up would set), which may already serve
+/// clients: the first link-up, at whichever look it is seen (the driver
+/// may report it between two), is not a link change, and setting the
+/// configuration again would restart DHCP over a lease just taken and
+/// reset the connections accepted meanwhile.
+#[derive(Debug)]
+struct LinkWatch {
+    link: bool,
+    lost: bool,
+}
+
+impl LinkWatch {
+    const fn new() -> Self {
+        Self { link: false, lost: false }
+    }
+
+    /// What the link at this look changes.
+    fn look(&mut self, link_now: bool) -> Option<LinkChange> {
+        let change = match (self.link, link_now) {
+            (false, true) => Some(LinkChange::Up { reconfigure: self.lost }),
+            (true, false) => {
+                self.lost = true;
+                Some(LinkChange::Down)
+            }
+            _ => None,
+        };
+        self.link = link_now;
+        change
+    }
+}
+
 /// Follows the link forever: configures the address on each link-up (DHCP
 /// with `name`'s name then) and closes the sessions on each link loss. One
 /// small state machine on a 100 ms tick ([`LINK_POLL`]): cheaper in flash
@@ -111,42 +156,37 @@ pub async fn run<S: Service, N: DeviceName + ?Sized>(
     let port = server.with_config(|config| config.port);
     let fallback = static_config(settings);
     let mut ticker = Ticker::every(LINK_POLL);
-    let mut link = false;
+    let mut watch = LinkWatch::new();
     let mut address = false;
     // While DHCP runs with a fallback address: when the fallback applies.
     let mut fallback_at = None;
-    // Until the first link loss the stack runs on its initial configuration
-    // (`initial_config`, the same as below), which may already serve
-    // clients: the first link-up, whenever this loop sees it (the driver may
-    // report it between two looks), is not a link change, and setting the
-    // configuration again would restart DHCP over a lease just taken and
-    // reset the connections accepted meanwhile.
-    let mut lost = false;
     loop {
         let link_now = stack.is_link_up();
-        if link_now && !link {
-            info!("link up");
-            fallback_at = match (settings.mode, &fallback) {
-                (NetMode::Static, Some(config)) => {
-                    if lost {
-                        stack.set_config_v4(ConfigV4::Static(config.clone()));
+        match watch.look(link_now) {
+            Some(LinkChange::Up { reconfigure }) => {
+                info!("link up");
+                fallback_at = match (settings.mode, &fallback) {
+                    (NetMode::Static, Some(config)) => {
+                        if reconfigure {
+                            stack.set_config_v4(ConfigV4::Static(config.clone()));
+                        }
+                        None
                     }
-                    None
-                }
-                (_, fallback) => {
-                    if lost {
-                        stack.set_config_v4(ConfigV4::Dhcp(dhcp_config(&name.device_name())));
+                    (_, fallback) => {
+                        if reconfigure {
+                            stack.set_config_v4(ConfigV4::Dhcp(dhcp_config(&name.device_name())));
+                        }
+                        let timeout = Duration::from_secs(u64::from(settings.dhcp_timeout_s));
+                        fallback.as_ref().map(|_| Instant::now() + timeout)
                     }
-                    let timeout = Duration::from_secs(u64::from(settings.dhcp_timeout_s));
-                    fallback.as_ref().map(|_| Instant::now() + timeout)
-                }
-            };
-        } else if link && !link_now {
-            warn!("link down: closing {} sessions", server.slots().open_count());
-            server.slots().evict_all();
-            lost = true;
+                };
+            }
+            Some(LinkChange::Down) => {
+                warn!("link down: closing {} sessions", server.slots().open_count());
+                server.slots().evict_all();
+            }
+            None => {}
         }
-        link = link_now;
 
         // DHCP gave nothing in time: the fallback applies (at once, so the
         // address is logged below in this same tick, before any client).
@@ -176,6 +216,26 @@ pub async fn run<S: Service, N: DeviceName + ?Sized>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The first link-up keeps the initial configuration whenever it is
+    /// seen: at the first look, or later (the driver reported it between
+    /// two looks, which once restarted DHCP over a fresh lease); every
+    /// link-up after a loss sets it again.
+    #[test]
+    fn only_a_link_up_after_a_loss_sets_the_configuration_again() {
+        let mut watch = LinkWatch::new();
+        assert_eq!(watch.look(true), Some(LinkChange::Up { reconfigure: false }), "up at the first look");
+
+        let mut watch = LinkWatch::new();
+        assert_eq!(watch.look(false), None, "down at the first look: the driver has not said yet");
+        assert_eq!(watch.look(false), None);
+        assert_eq!(watch.look(true), Some(LinkChange::Up { reconfigure: false }), "up at a later look: no change");
+        assert_eq!(watch.look(true), None);
+        assert_eq!(watch.look(false), Some(LinkChange::Down));
+        assert_eq!(watch.look(true), Some(LinkChange::Up { reconfigure: true }), "after a loss: a fresh exchange");
+        assert_eq!(watch.look(false), Some(LinkChange::Down));
+        assert_eq!(watch.look(true), Some(LinkChange::Up { reconfigure: true }));
+    }
 
     #[test]
     fn the_mac_is_local_unicast_and_stable() {
