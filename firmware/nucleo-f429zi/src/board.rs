@@ -1,7 +1,9 @@
 //! NUCLEO-F429ZI (STM32F429ZI, LAN8742A PHY over RMII): the real I/O adapter.
 //!
-//! - [`init`]: clocks (180 MHz from the ST-LINK's 8 MHz MCO, HSE bypass), the
-//!   watchdog, the pins, the ADC and DAC, and the Ethernet MAC + PHY.
+//! - [`init`]: clocks ([`clock`]: 180 MHz from the ST-LINK's 8 MHz MCO, HSE
+//!   bypass, or 168 MHz from the HSI without it), the chip's traps stepped
+//!   around ([`silicon`]), the watchdog, the pins, the ADC and DAC, and the
+//!   Ethernet MAC + PHY ([`phy`]).
 //! - [`net`]: the MAC address from the unique ID, DHCP with a static fallback
 //!   ([`settings`]), link loss and link return.
 //! - [`pins`]: the 44 digital points, the analog points and the input edges
@@ -18,19 +20,18 @@ use embassy_executor::{SpawnError, Spawner};
 use embassy_net::Stack;
 use embassy_stm32::adc::{Adc, AdcChannel};
 use embassy_stm32::dac::Dac;
-use embassy_stm32::eth::Ethernet;
+use embassy_stm32::eth::{Ethernet, Sma};
 use embassy_stm32::exti::{ExtiInput, TriggerEdge};
 use embassy_stm32::gpio::{Level, Output, Pin, Speed};
 use embassy_stm32::peripherals::{IWDG, RNG, TIM3, TIM4};
 use embassy_stm32::rng::Rng;
-use embassy_stm32::time::Hertz;
 use embassy_stm32::timer::{Ch1, Ch2, Ch3, Ch4};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, eth, rng};
 use static_cell::StaticCell;
 
 use crate::pins::{self, CaptureTimer, Edges, INPUT_PULL, output};
-use crate::{ModbusServer, leds, net, safety};
+use crate::{ModbusServer, clock, leds, net, phy, safety, silicon};
 #[cfg(feature = "http")]
 use crate::{button, flash};
 use adapter::device::Device;
@@ -53,33 +54,6 @@ bind_interrupts!(
         TIM4 => pins::CaptureInterrupt<TIM4>;
     }
 );
-
-/// The core clock.
-pub const SYSCLK: Hertz = Hertz(180_000_000);
-
-/// Clocks: the ST-LINK's 8 MHz MCO drives OSC_IN (HSE bypass); PLL 8 / 4 x 180 / 2 = 180 MHz
-/// (over-drive on, which embassy-stm32 enables for this chip); AHB 180, APB1 45, APB2 90 MHz;
-/// PLL Q = 45 MHz for the RNG (it needs at most 48 MHz).
-fn clocks() -> embassy_stm32::Config {
-    use embassy_stm32::rcc::{
-        AHBPrescaler, APBPrescaler, Hse, HseMode, Pll, PllMul, PllPDiv, PllPreDiv, PllQDiv, PllSource, Sysclk,
-    };
-    let mut config = embassy_stm32::Config::default();
-    config.rcc.hse = Some(Hse { freq: Hertz(8_000_000), mode: HseMode::Bypass });
-    config.rcc.pll_src = PllSource::HSE;
-    config.rcc.pll = Some(Pll {
-        prediv: PllPreDiv::DIV4,
-        mul: PllMul::MUL180,
-        divp: Some(PllPDiv::DIV2),
-        divq: Some(PllQDiv::DIV8),
-        divr: None,
-    });
-    config.rcc.ahb_pre = AHBPrescaler::DIV1;
-    config.rcc.apb1_pre = APBPrescaler::DIV4;
-    config.rcc.apb2_pre = APBPrescaler::DIV2;
-    config.rcc.sys = Sysclk::PLL1_P;
-    config
-}
 
 /// Everything [`init`] brings up, handed to the binary.
 pub struct Board {
@@ -128,13 +102,43 @@ impl core::fmt::Debug for Tasks {
     }
 }
 
-/// Brings the board up: clocks, watchdog (running from here on), outputs
-/// off, inputs with their edge interrupts, ADC, DAC, RNG, Ethernet and the
-/// settings flash.
+#[cfg(feature = "http")]
+impl Tasks {
+    /// Runs `future` to its end before the executor runs the other tasks,
+    /// feeding the watchdog meanwhile ([`safety::block_on_fed`]): its
+    /// feeder task is not running yet.
+    pub fn block_on<F: core::future::Future>(&mut self, future: F) -> F::Output {
+        safety::block_on_fed(&mut self.watchdog, future)
+    }
+}
+
+/// Brings the board up: clocks, the flash accelerator, PA12, watchdog
+/// (running from here on), outputs off, inputs with their edge
+/// interrupts, ADC, DAC, RNG, Ethernet and the settings flash.
 pub fn init() -> Board {
-    let p = embassy_stm32::init(clocks());
+    // Before embassy's init, which would wait for HSE forever.
+    let clock = clock::probe();
+    let p = embassy_stm32::init(clock::config(clock));
+    let prefetch = silicon::flash_accelerator_on();
+    // Before anything reads bank 2 (the settings, the boot state, DFU).
+    silicon::hold_pa12_low(p.PA12);
     let reset = safety::take_reset_cause();
-    defmt::info!("NUCLEO-F429ZI at {} MHz; last reset: {=str}", SYSCLK.0 / 1_000_000, reset.name());
+    // REV_ID (ES0206, table 2): 0x1000 A, 0x1003 Y, 0x1007 1, 0x2001 3, 0x2003 5 or B.
+    defmt::info!(
+        "NUCLEO-F429ZI at {} MHz from {}, silicon REV_ID {=u16:#06x}, flash prefetch {=bool}; last reset: {=str}",
+        clock::sysclk(clock).0 / 1_000_000,
+        clock,
+        silicon::revision(),
+        prefetch,
+        reset.name()
+    );
+    let clock_fallback = clock == clock::Source::Hsi;
+    if clock_fallback {
+        defmt::warn!(
+            "clocks: no 8 MHz from the ST-LINK's MCO within {} ms: running on the internal RC (HSI); LD3 blinks",
+            clock::HSE_TIMEOUT_MS
+        );
+    }
 
     // From here on a stall (in the rest of bring-up, or of the executor) resets the MCU.
     let watchdog = safety::start_watchdog(p.IWDG);
@@ -145,6 +149,7 @@ pub fn init() -> Board {
         traffic: Output::new(p.PB7, Level::Low, Speed::Low),
         fault: Output::new(p.PB14, Level::Low, Speed::Low),
         watchdog_reset: reset == safety::ResetCause::Watchdog,
+        clock_fallback,
     };
     // B1 pulls PC13 up to 3V3 when pressed (UM1974); the internal pull-down
     // keeps it low when released, beside the board's own.
@@ -227,7 +232,7 @@ pub fn init() -> Board {
     let mac = adapter::net::mac_from_uid(&embassy_stm32::uid::uid());
     defmt::info!("MAC {:02x}", mac);
     // RMII: REF_CLK PA1, CRS_DV PA7, RXD0 PC4, RXD1 PC5, TXD0 PG13, TXD1 PB13, TX_EN PG11; MDIO PA2, MDC PC1.
-    let ethernet = Ethernet::new(
+    let ethernet = Ethernet::new_with_phy(
         net::packets(),
         p.ETH,
         Irqs,
@@ -239,9 +244,7 @@ pub fn init() -> Board {
         p.PB13,
         p.PG11,
         mac,
-        p.ETH_SMA,
-        p.PA2,
-        p.PC1,
+        phy::Lan8742a::new(Sma::new(p.ETH_SMA, p.PA2, p.PC1)),
     );
 
     Board {

@@ -3,7 +3,8 @@
 //! are erased before they are read.
 //!
 //! It runs in [`crate::board::init`], before the executor runs anything
-//! else, so it waits by blocking and pets the independent watchdog itself.
+//! else, so it waits by blocking and pets the independent watchdog itself,
+//! every [`STEP`] (100 ms: well inside its shortest period, 1.36 s).
 //! What the user sees: while the button is held, LD1-LD3 blink together at
 //! 5 Hz; after [`HOLD`], all three stay on for a second (the reset will
 //! happen). Released sooner, the LEDs go out and the board starts with its
@@ -47,8 +48,11 @@ pub fn factory_reset_held(button: &Input<'_>, watchdog: &mut IndependentWatchdog
         block_for(STEP);
     }
     set_all(leds, Level::High);
-    watchdog.pet();
-    block_for(ACKNOWLEDGE);
+    let start = Instant::now();
+    while start.elapsed() < ACKNOWLEDGE {
+        watchdog.pet();
+        block_for(STEP);
+    }
     watchdog.pet();
     set_all(leds, Level::Low);
     true

@@ -11,16 +11,37 @@
 //! owns its region.
 //!
 //! It runs on embassy-stm32's interrupt-driven flash driver: a sector erase
-//! takes hundreds of milliseconds (a 128 KiB one up to 2 s), and the
-//! executor keeps running the other tasks meanwhile (the code runs from
-//! bank 1, which stays readable while bank 2 is erased). A blocking driver
-//! would stall the network and the watchdog's feeding for as long.
+//! takes hundreds of milliseconds (a 128 KiB one 1 s typical, 2 s at most,
+//! at the x32 parallelism set here), and the executor keeps running the
+//! other tasks meanwhile (the code runs from bank 1, which stays readable
+//! while bank 2 is erased). A blocking driver would stall the network and
+//! the watchdog's feeding for as long.
+//!
+//! Bank 2 has one owner, [`BANK2`]: every read, write and erase of every
+//! partition takes it. The flash reads while writing only across banks
+//! (RM0090, read-while-write): a read of bank 2 while a sector of bank 2 is
+//! erased stalls the bus, and with it the core, for the rest of the erase
+//! (embassy's reads take no lock), so a settings load during an upload's
+//! erase of DFU would stop the network and the watchdog's feeding for up
+//! to 2 s. Holding the lock, a reader waits for the erase to end instead,
+//! and the other tasks run. Every caller erases one sector a call (the
+//! settings store a 16 KiB page, the updater a 128 KiB DFU sector as the
+//! upload reaches it, embassy-boot's state its one 64 KiB sector), so a
+//! reader waits for one sector at most, not for all of DFU.
+//!
+//! Erases run at x32 parallelism ([`crate::silicon::erase_at_x32`]), set
+//! under the same lock right before the erase: nothing rewrites FLASH_CR
+//! in between (only a write would, and writes take the lock), and
+//! embassy's erase keeps PSIZE from one sector to the next (it only
+//! modifies FLASH_CR, and its unlock writes KEYR alone).
 
 use embassy_stm32::Peri;
 use embassy_stm32::flash::{Async, BANK2_REGION1, Bank2Region1, Error, FLASH_BASE, FLASH_SIZE, Flash, FlashRegion};
 #[cfg(feature = "update")]
 use embassy_stm32::flash::{BANK2_REGION2, BANK2_REGION3, Bank2Region2, Bank2Region3};
 use embassy_stm32::peripherals::FLASH;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::mutex::Mutex;
 use embedded_storage_async::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
 
 use crate::board::Irqs;
@@ -31,6 +52,10 @@ include!(concat!(env!("OUT_DIR"), "/memory.rs"));
 
 /// Bank 2 is the upper half: a 2 MiB STM32F429 always has two banks.
 const BANK2_START: u32 = FLASH_BASE as u32 + FLASH_SIZE as u32 / 2;
+
+/// Bank 2's owner: held across every read, write and erase of
+/// every [`Partition`], so no read of bank 2 meets an erase of it.
+static BANK2: Mutex<CriticalSectionRawMutex, ()> = Mutex::new(());
 
 /// Whether `start..start + len` is whole sectors of `region` (in bank 2).
 const fn fits(region: &FlashRegion, start: u32, len: u32) -> bool {
@@ -128,7 +153,10 @@ macro_rules! partition_of {
 
             async fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Error> {
                 let at = Self::locate(offset, bytes.len())?;
-                self.region.read(at, bytes).await
+                // A read is a copy: it ends before anything else runs, so
+                // the lock is held across no await (cheaper futures).
+                let _bank = BANK2.lock().await;
+                self.region.blocking_read(at, bytes)
             }
 
             fn capacity(&self) -> usize {
@@ -142,12 +170,23 @@ macro_rules! partition_of {
 
             async fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Error> {
                 let at = Self::locate(offset, bytes.len())?;
+                let _bank = BANK2.lock().await;
                 self.region.write(at, bytes).await
             }
 
+            /// At x32, under [`BANK2`] from the parallelism's setting to
+            /// the erase's end.
             async fn erase(&mut self, from: u32, to: u32) -> Result<(), Error> {
+                const SECTOR: u32 = <$region<'static, Async> as NorFlash>::ERASE_SIZE as u32;
                 let len = to.checked_sub(from).ok_or(Error::Size)?;
                 let at = Self::locate(from, len as usize)?;
+                // Checked before the flash is unlocked (the partition's
+                // start is a sector's, checked at compile time).
+                if !at.is_multiple_of(SECTOR) || !len.is_multiple_of(SECTOR) {
+                    return Err(Error::Unaligned);
+                }
+                let _bank = BANK2.lock().await;
+                crate::silicon::erase_at_x32();
                 self.region.erase(at, at + len).await
             }
         }

@@ -4,7 +4,7 @@
 //! |---|---|---|---|
 //! | LD1 | green | PB0 | off: no Ethernet link; blinking: link, no address yet; on: link and address |
 //! | LD2 | blue | PB7 | flashes for each Modbus connection and request ([`TRAFFIC_FLASH`]); blinks at 2 Hz while the HTTP API's locate runs ([`locate`]) |
-//! | LD3 | red | PB14 | on: a fault (outputs off, reset follows); on for [`WATCHDOG_SHOWN`] after a watchdog reset |
+//! | LD3 | red | PB14 | on: a fault (outputs off, reset follows); on for [`WATCHDOG_SHOWN`] after a watchdog reset; blinking at 1 Hz: no 8 MHz clock from the ST-LINK, running on the internal RC ([`crate::clock`]) |
 
 use embassy_net::Stack;
 use embassy_stm32::gpio::{Level, Output};
@@ -18,6 +18,9 @@ pub const TRAFFIC_FLASH: Duration = Duration::from_millis(50);
 const BLINK_TICKS: u32 = 5;
 /// How long LD3 stays on after a watchdog reset.
 pub const WATCHDOG_SHOWN: Duration = Duration::from_secs(10);
+/// LD3's blink half-period on the fallback clock, in LED ticks (500 ms: 1 Hz,
+/// unlike LD1's 2 Hz, and never steady like a fault).
+const CLOCK_FALLBACK_TICKS: u32 = 10;
 /// LD2's locate blink half-period, in LED ticks (250 ms: 2 Hz).
 #[cfg(feature = "http")]
 const LOCATE_TICKS: u32 = 5;
@@ -44,11 +47,16 @@ pub struct Leds {
     pub fault: Output<'static>,
     /// The last reset came from the watchdog.
     pub watchdog_reset: bool,
+    /// No 8 MHz clock from the ST-LINK: the clocks run from the HSI.
+    pub clock_fallback: bool,
 }
 
 impl core::fmt::Debug for Leds {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.debug_struct("Leds").field("watchdog_reset", &self.watchdog_reset).finish_non_exhaustive()
+        f.debug_struct("Leds")
+            .field("watchdog_reset", &self.watchdog_reset)
+            .field("clock_fallback", &self.clock_fallback)
+            .finish_non_exhaustive()
     }
 }
 
@@ -76,7 +84,10 @@ pub async fn led_task(mut leds: Leds, stack: Stack<'static>, shared: &'static Mo
         leds.traffic.set_level(Level::from(traffic));
         seen = seen.max(activity);
 
-        leds.fault.set_level(Level::from(Instant::now() < fault_until));
+        // After a watchdog reset, steady first; then the clock fallback's blink.
+        let fault =
+            Instant::now() < fault_until || (leds.clock_fallback && (tick / CLOCK_FALLBACK_TICKS).is_multiple_of(2));
+        leds.fault.set_level(Level::from(fault));
         tick = tick.wrapping_add(1);
         ticker.next().await;
     }

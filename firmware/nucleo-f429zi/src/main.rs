@@ -13,14 +13,19 @@
 mod board;
 #[cfg(feature = "http")]
 mod button;
+mod clock;
 #[cfg(feature = "http")]
 mod flash;
 #[cfg(feature = "http")]
 mod http;
 mod leds;
 mod net;
+mod phy;
 mod pins;
 mod safety;
+// Its erase parallelism is for the flash driver, which only `http` has.
+#[cfg_attr(not(feature = "http"), expect(dead_code))]
+mod silicon;
 #[cfg(feature = "update")]
 mod update;
 
@@ -76,7 +81,8 @@ fn main() -> ! {
 /// Brings the board up, loads the settings and starts every task.
 #[embassy_executor::task]
 async fn start(spawner: Spawner) {
-    let board = board::init();
+    #[cfg_attr(not(feature = "http"), expect(unused_mut))]
+    let mut board = board::init();
 
     // The settings in force: the saved ones (the factory settings when none
     // are saved or they cannot be taken whole), or without the store the
@@ -84,8 +90,11 @@ async fn start(spawner: Spawner) {
     // Loaded before any other task runs, by blocking: a task's future keeps
     // every local live across its `.await`s in static RAM for good (the
     // board's peripherals, the settings: 2 KiB), and nothing waits meanwhile.
+    // The watchdog runs and its feeder task does not yet: the load feeds it
+    // (a factory reset, or a format, erases two 16 KiB sectors: up to 1 s,
+    // near the watchdog's shortest period, 1.36 s).
     #[cfg(feature = "http")]
-    let (store, loaded) = embassy_futures::block_on(http::load(board.flash.settings, board.factory_reset));
+    let (store, loaded) = board.tasks.block_on(http::load(board.flash.settings, board.factory_reset));
     #[cfg(feature = "http")]
     let settings = loaded.settings;
     #[cfg(not(feature = "http"))]

@@ -2,12 +2,15 @@
 //! buffers (the stack, its runner and the network policy are the
 //! program's: `program::network`, `program::spawn`).
 
-use embassy_stm32::eth::{Ethernet, GenericPhy, PacketQueue, Sma};
-use embassy_stm32::peripherals::{ETH, ETH_SMA};
+use embassy_stm32::eth::{Ethernet, PacketQueue};
+use embassy_stm32::peripherals::ETH;
 use static_cell::StaticCell;
 
-/// The Ethernet driver: the MAC with a generic SMI PHY (the LAN8742A answers at address 0).
-pub type Device = Ethernet<'static, ETH, GenericPhy<Sma<'static, ETH_SMA>>>;
+use crate::phy::Lan8742a;
+
+/// The Ethernet driver: the MAC with the LAN8742A, which sets the MAC's
+/// speed and duplex to what it negotiated ([`crate::phy`]).
+pub type Device = Ethernet<'static, ETH, Lan8742a>;
 
 /// Frames the MAC can hold waiting for the stack (1536 bytes each).
 pub const RX_PACKETS: usize = 4;

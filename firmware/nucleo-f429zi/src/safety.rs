@@ -90,6 +90,28 @@ pub fn start_watchdog(iwdg: Peri<'static, IWDG>) -> IndependentWatchdog<'static,
     watchdog
 }
 
+/// Runs `future` to its end by polling it in a loop
+/// (`embassy_futures::block_on`), feeding the watchdog before every poll:
+/// for work done before the executor runs [`watchdog_task`] (the settings'
+/// load at start, whose factory reset or format erases two 16 KiB sectors:
+/// up to 1 s at x32, 1.6 s at x8, where the shortest watchdog period,
+/// `WATCHDOG_TIMEOUT_US` at the LSI's fastest, 47 kHz, is 1.36 s).
+/// `block_on` polls without pause,
+/// and a poll of a flash operation returns at once while the flash is busy,
+/// so the watchdog is fed every few microseconds. The future must not
+/// wait on embassy-time's timers (their queue wants the executor's wakers).
+#[cfg(feature = "http")]
+pub fn block_on_fed<F: core::future::Future>(
+    watchdog: &mut IndependentWatchdog<'static, IWDG>,
+    future: F,
+) -> F::Output {
+    let mut future = core::pin::pin!(future);
+    embassy_futures::block_on(core::future::poll_fn(|cx| {
+        watchdog.pet();
+        future.as_mut().poll(cx)
+    }))
+}
+
 /// Feeds the watchdog for as long as the executor runs (with `update`:
 /// and the image is not on trial past its limit, `update::keeps_feeding`).
 #[embassy_executor::task]
