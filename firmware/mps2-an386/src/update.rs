@@ -40,7 +40,6 @@ static TAKEN: AtomicBool = AtomicBool::new(false);
 #[unsafe(link_section = ".image_info")]
 static IMAGE_INFO: [u8; update::IMAGE_INFO_LEN] = update::image_info(adapter::VERSION);
 
-
 /// The bootloader's swap page (RuleFlash's page, as in the bootloader).
 const PAGE: u32 = 4096;
 
