@@ -4,11 +4,18 @@ namespace's TAP (host side 198.18.0.1), IPv4 only. Prints one JSON line.
 
     zeroconf-client.py resolve NAME.local. [TIMEOUT_S]
         {"addresses": ["198.18.0.2"]}           (empty when nothing answered)
-    zeroconf-client.py browse _modbus._tcp.local. [TIMEOUT_S]
+    zeroconf-client.py browse _modbus._tcp.local. [TIMEOUT_S] [--wait-for INSTANCE]
         {"instances": [{"name": ..., "port": ..., "server": ..., "addresses": [...], "txt": {...}}]}
+
+Options:
+    --toward ADDR        query on this machine's interface toward ADDR (a
+                         board on the LAN), not on 198.18.0.1
+    --wait-for INSTANCE  browse until this instance (NAME._modbus._tcp.local.)
+                         is among the found, not only until a first one is
 """
 
 import json
+import socket
 import sys
 import time
 
@@ -37,11 +44,12 @@ class Collect(ServiceListener):
         pass
 
 
-def browse(zc, type_, timeout):
+def browse(zc, type_, timeout, wanted=None):
     listener = Collect()
     browser = ServiceBrowser(zc, type_, listener)
     deadline = time.monotonic() + timeout
-    while not listener.names and time.monotonic() < deadline:
+    found = (lambda: wanted in listener.names) if wanted else (lambda: listener.names)
+    while not found() and time.monotonic() < deadline:
         time.sleep(0.05)
     browser.cancel()
     instances = []
@@ -60,15 +68,35 @@ def browse(zc, type_, timeout):
     return {"instances": instances}
 
 
+def interface_toward(address):
+    """This machine's address that the route to `address` leaves from."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.connect((address, 5353))
+        return probe.getsockname()[0]
+
+
 def main():
-    if len(sys.argv) < 3 or sys.argv[1] not in ("resolve", "browse"):
+    args, options = [], {}
+    argv = sys.argv[1:]
+    while argv:
+        arg = argv.pop(0)
+        if arg in ("--toward", "--wait-for") and argv:
+            options[arg] = argv.pop(0)
+        else:
+            args.append(arg)
+    if len(args) not in (2, 3) or args[0] not in ("resolve", "browse"):
         print(__doc__, file=sys.stderr)
         return 2
-    command, what = sys.argv[1], sys.argv[2]
-    timeout = float(sys.argv[3]) if len(sys.argv) > 3 else 5.0
-    zc = Zeroconf(interfaces=[HOST_SIDE], ip_version=IPVersion.V4Only)
+    command, what = args[0], args[1]
+    timeout = float(args[2]) if len(args) > 2 else 5.0
+    toward = options.get("--toward")
+    interface = interface_toward(toward) if toward else HOST_SIDE
+    zc = Zeroconf(interfaces=[interface], ip_version=IPVersion.V4Only)
     try:
-        result = resolve(zc, what, timeout) if command == "resolve" else browse(zc, what, timeout)
+        if command == "resolve":
+            result = resolve(zc, what, timeout)
+        else:
+            result = browse(zc, what, timeout, options.get("--wait-for"))
     finally:
         zc.close()
     print(json.dumps(result))

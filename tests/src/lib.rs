@@ -2,6 +2,7 @@
 //! under test.
 
 pub mod abuse;
+pub mod board;
 pub mod browser;
 pub mod controller;
 pub mod dhcp;

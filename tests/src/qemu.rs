@@ -20,7 +20,8 @@
 //!   second boot finds what the first one saved.
 //! - [`Qemu::slirp_booting`]: the bootloader as the kernel, starting the
 //!   image with the `update` feature from the state file's ACTIVE partition
-//!   ([`update_images`], [`install`]).
+//!   ([`update_images`], [`install`]); [`Qemu::tap_booting`] the same on a
+//!   namespace's TAP.
 //!
 //! The board's PSRAM (QEMU's machine RAM, 16 MiB at `0x2100_0000`), where
 //! the firmware keeps its settings ([`SETTINGS`]), is a state file mapped
@@ -433,9 +434,21 @@ impl Qemu {
     /// Boots the image on the TAP of a new network namespace; the firmware is
     /// at 198.18.0.2 once its DHCP attempt has timed out.
     pub fn tap() -> Self {
+        Self::tap_on(None, None)
+    }
+
+    /// Boots `bootloader` as the kernel, as [`Qemu::slirp_booting`] does,
+    /// on the TAP of a new network namespace, as [`Qemu::tap`] does: the
+    /// image with `update` from the state file's ACTIVE, with no DHCP
+    /// server, at 198.18.0.2 once its DHCP attempt has timed out.
+    pub fn tap_booting(bootloader: &Path, image: &Path, state: &Path) -> Self {
+        Self::tap_on(Some(state), Some((bootloader, image)))
+    }
+
+    fn tap_on(state: Option<&Path>, images: Option<(&Path, &Path)>) -> Self {
         let ns = Namespace::new().expect("a network namespace with a TAP");
         let ip: Ipv4Addr = DEVICE_IP.parse().expect("DEVICE_IP is an IPv4 address");
-        let mut qemu = Self::boot(Network::Tap(&ns), SocketAddr::from((ip, MODBUS_PORT)), None, None)
+        let mut qemu = Self::boot(Network::Tap(&ns), SocketAddr::from((ip, MODBUS_PORT)), state, images)
             .unwrap_or_else(|error| panic!("QEMU did not start:\n{error}"));
         qemu.ns = Some(ns);
         qemu
