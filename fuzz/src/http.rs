@@ -10,12 +10,15 @@
 //!   (its `Content-Length` bytes of body and nothing after), and a JSON
 //!   body is JSON;
 //! - the settings change only through a `PUT /api/settings` answered 200,
-//!   from an address `allow_write` admits, with the password when one is
-//!   set, typed as JSON (a page of another site cannot), and then to what
-//!   the response shows; a refused one (any other
-//!   status) changes nothing and saves nothing;
-//! - the password, a reboot, a factory reset, a blink happen only through
-//!   their own endpoint, answered 200 or 202, under the same conditions.
+//!   from an address `allow_write` admits, on a device with a password and
+//!   with it, typed as JSON (a page of another site cannot), and then to
+//!   what the response shows; a refused one (any other status) changes
+//!   nothing and saves nothing;
+//! - a reboot, a factory reset, a blink, an update happen only through
+//!   their own endpoint, answered 200 or 202, under the same conditions;
+//! - the password changes only through its endpoint, answered 200, from
+//!   `allow_write`, typed, and with the current password once one is set
+//!   (the first one without: the device's first minutes).
 
 use core::pin::pin;
 use core::task::Poll;
@@ -242,8 +245,10 @@ pub fn http(data: &[u8]) {
     // page of another site cannot send without a preflight.
     let lower = input.stream.to_ascii_lowercase();
     let typed = contains(&lower, b"application/json") || contains(&lower, b"application/octet-stream");
-    let may_change =
-        !flag(HTTP_OUTSIDE) && typed && (password.is_none() || contains(&without_nul, credentials().as_bytes()));
+    let credentialed = contains(&without_nul, credentials().as_bytes());
+    // Until a password is set the only change taken is setting it.
+    let may_set_password = !flag(HTTP_OUTSIDE) && typed && (password.is_none() || credentialed);
+    let may_change = !flag(HTTP_OUTSIDE) && typed && password.is_some() && credentialed;
 
     // The password: changed when its set state did, or the one set no longer verifies.
     let password_changed = control.password_set() != password.is_some()
@@ -258,7 +263,7 @@ pub fn http(data: &[u8]) {
     assert_eq!(saved, u32::from(changed) + u32::from(password_put), "saved exactly when changed");
     if changed {
         assert!(asked("PUT", "/api/settings") && status == Some(200), "a change without an accepted PUT");
-        assert!(may_change, "a change from outside allow_write or without the password");
+        assert!(may_change, "a change from outside allow_write, without the password or before one is set");
         let body = response.as_ref().map_or(&[][..], |r| r.body.as_slice());
         let shown: serde_json::Value = serde_json::from_slice(body).expect("the new settings");
         for &field in Field::ALL {
@@ -279,7 +284,7 @@ pub fn http(data: &[u8]) {
     // The password, the actions, the blink: each only through its endpoint.
     if password_changed {
         assert!(asked("PUT", "/api/password") && status == Some(200), "the password changed");
-        assert!(may_change, "the password changed from outside or without the current one");
+        assert!(may_set_password, "the password changed from outside or without the current one");
     }
     // An update file: only through its endpoint, whole, from those who may
     // change the device; taken (and a reboot asked) exactly when accepted.

@@ -69,12 +69,15 @@ pub enum Command {
     /// `factory-reset`: erases the saved settings and the password, then
     /// reboots (hal-sim executes itself again), as the board's button does.
     FactoryReset,
+    /// `button`: the device's button pressed briefly, the physical act
+    /// that lets the first admin password be set for 10 minutes more.
+    Button,
     /// `help`.
     Help,
 }
 
 const HELP: &str = "ok commands: set di N 0|1; set tool-di N 0|1; set ai N VALUE; \
-get di|tool-di|do|tool-do; get ai N; get ao N; get robot; get stats; get locate; factory-reset; \
+get di|tool-di|do|tool-do; get ai N; get ao N; get robot; get stats; get locate; factory-reset; button; \
 robot estop press|release; robot safety-stop [recovery]; robot reset; robot recover; \
 robot teach press|release; robot power press|release; robot state N|NAME; help";
 
@@ -121,6 +124,7 @@ pub fn parse(line: &str) -> Result<Command, String> {
                 .into());
         }
         ["factory-reset"] => Command::FactoryReset,
+        ["button"] => Command::Button,
         ["robot", rest @ ..] => Command::Robot(robot_event(rest)?),
         ["help"] => Command::Help,
         [] => return Err("empty command".into()),
@@ -248,6 +252,11 @@ pub fn execute(board: &Board, controller: &SimController, command: Command) -> S
         Command::FactoryReset => {
             log::warn!("control: factory reset");
             "ok erasing the settings, then rebooting".into()
+        }
+        Command::Button => {
+            controller.open_first_password_window();
+            log::info!("control: the button, pressed briefly");
+            format!("ok first password open: {}", u8::from(controller.first_password_open()))
         }
         Command::Help => HELP.into(),
     }
@@ -434,6 +443,8 @@ mod tests {
         assert_eq!(parse("factory-reset"), Ok(Command::FactoryReset));
         assert!(parse("factory-reset now").unwrap_err().contains("unknown command"));
         assert!(HELP.contains("get locate") && HELP.contains("factory-reset"));
+        assert_eq!(parse("button"), Ok(Command::Button));
+        assert!(HELP.contains("button"));
     }
 
     #[test]

@@ -111,6 +111,14 @@ async function main(browser) {
   await shows(page, '#rob', 'simulated robot');
   await shows(page, '#cnt', 'requests');
   check(await page.isVisible('#warn'), 'the warning that no admin password is set');
+  // A new device takes nothing but its first password: no other control until then.
+  for (const id of ['set', 'loc', 'rbt', 'fac', 'pw', 'ff']) check(!(await page.isVisible('#' + id)), `#${id} waits for the first password`);
+  await shows(page, '#claim', 'within 10 minutes of power-up');
+  await page.fill('#np', PASSWORD);
+  await page.click('text=Set password');
+  await page.waitForSelector('#warn', { state: 'hidden', timeout: 3000 });
+  await page.waitForSelector('#set', { state: 'visible', timeout: 3000 });
+  check(await page.isVisible('#loc'), 'the controls once the password is set');
 
   // What the test's Modbus master wrote, and that it is listed.
   await shows(page, '#con', '198.18.0.1');
@@ -170,11 +178,8 @@ async function main(browser) {
   await page.click('text=Factory reset');
   check(asked.includes('Erase every setting'), `factory reset asks first: ${JSON.stringify(asked)}`);
 
-  // A password set from the page: the warning goes, a change without the
-  // password is refused visibly (401), and with it goes through.
-  await page.fill('#np', PASSWORD);
-  await page.click('text=Set password');
-  await page.waitForSelector('#warn', { state: 'hidden', timeout: 3000 });
+  // A change without the password is refused visibly (401), and with it
+  // goes through.
   await page.fill('#pw', '');
   await page.click('#loc');
   await shows(page, '#amsg', '401: the admin password is required');

@@ -28,6 +28,9 @@ const CHROMIUM = '/usr/bin/chromium';
 const UPLOAD_RATE = 64 * 1024;
 // The device's restart: reboot, swap, network, first poll.
 const RESTART_MS = 60000;
+// The first admin password, set from the page: a new device takes no
+// update (no change at all) before it.
+const PASSWORD = 'correct-horse';
 
 class Failed extends Error {}
 function check(ok, what) {
@@ -79,7 +82,13 @@ async function main() {
       offline: false, latency: 0, downloadThroughput: -1, uploadThroughput: UPLOAD_RATE,
     });
     await page.goto(url);
+    await page.waitForSelector('#warn:not([hidden])', { timeout: 15000 });
+    check(!(await page.isVisible('#ff')), 'no upload before the first password');
+    await page.fill('#np', PASSWORD);
+    await page.click('text=Set password');
+    await page.waitForSelector('#warn', { state: 'hidden', timeout: 5000 });
     await page.waitForSelector('#upd:not([hidden])', { timeout: 15000 });
+    await page.waitForSelector('#ff', { state: 'visible', timeout: 5000 });
     await page.waitForFunction(() => document.querySelectorAll('#fw dt').length > 0);
     summary.before = await firmware(page);
     check(summary.before.Running.startsWith(oldVersion), `running before: ${JSON.stringify(summary.before)}`);

@@ -458,11 +458,16 @@ impl<'a> Board<'a> {
         self.request("PUT", "/api/settings", &foreign, true, 10).expect(403, "PUT /api/settings from another origin");
 
         // The same change from the device's own origin is taken (a 200 that
-        // saves nothing), so the refusals above were the rules'.
+        // saves nothing), so the refusals above were the rules'; a device
+        // with no password yet takes no change but its first password.
         let origin = format!("Origin: http://{}", self.authority());
         let own = ["-H", "Content-Type: application/json", "-H", &origin, "--data-binary", "{}"];
         let reply = self.request("PUT", "/api/settings", &own, true, 10);
-        if before.settings["admin"]["password_set"] == true && self.password.is_none() {
+        if before.settings["admin"]["password_set"] != true {
+            reply.expect(403, "PUT /api/settings {} on a device with no admin password yet");
+            let message = reply.json()["errors"]["request"].as_str().unwrap_or_default().to_owned();
+            assert!(message.starts_with("no admin password is set"), "the refusal says why: {message}");
+        } else if self.password.is_none() {
             reply.expect(401, "PUT /api/settings {} without the password that is set");
         } else {
             let what =
@@ -614,6 +619,15 @@ impl<'a> Board<'a> {
     /// `GET path`.
     pub fn get(&self, path: &str) -> Response {
         self.request("GET", path, &[], false, 10)
+    }
+
+    /// Sets the device's first admin password and gives it with every
+    /// change from here on: a device takes no other change until one is
+    /// set (docs/http-api.md, "The first password").
+    pub fn claim(&mut self, password: &str) {
+        let reply = self.change("PUT", "/api/password", &format!(r#"{{"password": "{password}"}}"#));
+        reply.expect(200, "PUT /api/password: the first password");
+        self.password = Some(password.to_owned());
     }
 
     /// A change: `method path` with the JSON `body`, and the password

@@ -53,6 +53,9 @@ pub fn binary() -> PathBuf {
     path
 }
 
+/// The admin password the tests set as a device's first ([`HalSim::claim`]).
+pub const OWNER_PASSWORD: &str = "correct-horse";
+
 /// A running hal-sim in a namespace of its own; killed (and the namespace
 /// deleted) on drop.
 #[derive(Debug)]
@@ -170,6 +173,18 @@ impl HalSim {
     /// `GET path`.
     pub fn get(&self, path: &str) -> Reply {
         self.http(path, &[])
+    }
+
+    /// Sets the first admin password, [`OWNER_PASSWORD`], as its owner does
+    /// first, unless the test set it already: until one is set a device
+    /// takes no other change (docs/http-api.md, "The first password").
+    /// Returns it, for the changes that follow.
+    pub fn claim(&self) -> &'static str {
+        if self.get("/api/status").json()["admin"]["password_set"] != true {
+            let reply = self.put("/api/password", &format!(r#"{{"password": "{OWNER_PASSWORD}"}}"#), None);
+            assert_eq!(reply.status, 200, "the first password: {}", reply.body);
+        }
+        OWNER_PASSWORD
     }
 
     /// `PUT path` with the JSON `body`, and `admin:PASSWORD` credentials when given.

@@ -203,26 +203,41 @@ fn get_status(addr: SocketAddr) -> Option<String> {
     head.starts_with("HTTP/1.1 200").then(|| body.to_owned())
 }
 
-/// `POST /api/firmware` with `file`: the status code and the body (status
-/// 0 and what went wrong when no response came).
+/// The admin password the tests give a device ([`claim`]).
+pub const OWNER_PASSWORD: &str = "correct-horse";
+
+/// Sets the device's first admin password, [`OWNER_PASSWORD`], as its
+/// owner does first: until one is set a device takes no other change
+/// (docs/http-api.md, "The first password"). A device that has one
+/// already (a state file the test set it in before) answers 401: fine.
+pub fn claim(addr: SocketAddr) {
+    let body = format!(r#"{{"password": "{OWNER_PASSWORD}"}}"#);
+    let (status, reply) = send(addr, "PUT", "/api/password", "application/json", body.as_bytes(), false);
+    assert!(matches!(status, 200 | 401), "the first password: {status} {reply}");
+}
+
+/// `POST /api/firmware` with `file`, with the owner's password: the status
+/// code and the body (status 0 and what went wrong when no response came).
 pub fn upload(addr: SocketAddr, file: &[u8]) -> (u16, String) {
-    send(addr, "POST", "/api/firmware", "application/octet-stream", file)
+    send(addr, "POST", "/api/firmware", "application/octet-stream", file, true)
 }
 
-/// `PUT /api/settings` with the JSON `change`: the status code and the body.
+/// `PUT /api/settings` with the JSON `change` and the owner's password:
+/// the status code and the body.
 pub fn put_settings(addr: SocketAddr, change: &str) -> (u16, String) {
-    send(addr, "PUT", "/api/settings", "application/json", change.as_bytes())
+    send(addr, "PUT", "/api/settings", "application/json", change.as_bytes(), true)
 }
 
-/// One request with `body`, answered and closed by the device: the status
-/// code and the response's body (status 0 and what went wrong when no
-/// response came).
-fn send(addr: SocketAddr, method: &str, path: &str, content_type: &str, body: &[u8]) -> (u16, String) {
+/// One request with `body` (and the owner's credentials when `owner`),
+/// answered and closed by the device: the status code and the response's
+/// body (status 0 and what went wrong when no response came).
+fn send(addr: SocketAddr, method: &str, path: &str, content_type: &str, body: &[u8], owner: bool) -> (u16, String) {
     use std::io::{Read as _, Write as _};
     let mut stream = std::net::TcpStream::connect(addr).unwrap();
     stream.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
+    let credentials = if owner { owner_authorization() } else { String::new() };
     let head = format!(
-        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\n\r\n",
+        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nContent-Type: {content_type}\r\n{credentials}Content-Length: {}\r\n\r\n",
         body.len()
     );
     stream.write_all(head.as_bytes()).unwrap();
@@ -237,9 +252,34 @@ fn send(addr: SocketAddr, method: &str, path: &str, content_type: &str, body: &[
     (status, body)
 }
 
+/// The `Authorization` field, with its line end, for [`OWNER_PASSWORD`].
+pub fn owner_authorization() -> String {
+    format!("Authorization: Basic {}\r\n", basic(OWNER_PASSWORD))
+}
+
+/// base64 of `admin:password`, for `Authorization: Basic`.
+fn basic(password: &str) -> String {
+    const TABLE: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let plain = format!("admin:{password}");
+    let mut text = String::new();
+    for chunk in plain.as_bytes().chunks(3) {
+        let n = chunk.iter().enumerate().fold(0u32, |n, (i, &b)| n | u32::from(b) << (16 - 8 * i));
+        for i in 0..4 {
+            text.push(if i <= chunk.len() { char::from(TABLE[(n >> (18 - 6 * i) & 63) as usize]) } else { '=' });
+        }
+    }
+    text
+}
+
 #[cfg(test)]
 mod tests {
-    use super::bootloader_output;
+    use super::{basic, bootloader_output};
+
+    #[test]
+    fn basic_credentials_are_base64() {
+        assert_eq!(basic("correct-horse"), "YWRtaW46Y29ycmVjdC1ob3JzZQ==");
+        assert_eq!(basic("a"), "YWRtaW46YQ==");
+    }
 
     #[test]
     fn qemu_messages_are_taken_out_of_the_bootloader_output() {

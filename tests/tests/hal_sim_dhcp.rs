@@ -32,7 +32,7 @@ fn the_lease_names_the_device_and_a_new_name_comes_with_the_next_lease() {
 
     // A new name is saved and in force at once (mDNS, the page), but DHCP
     // takes it at the next fresh exchange: here the next start.
-    let reply = sim.put("/api/settings", r#"{"device": {"name": "press-7"}}"#, None);
+    let reply = sim.put("/api/settings", r#"{"device": {"name": "press-7"}}"#, Some(sim.claim()));
     assert_eq!(reply.status, 200, "{}", reply.body);
     sim.restart();
     let lease = dhcp.wait_lease("press-7", LEASE_WAIT);

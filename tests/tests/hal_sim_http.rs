@@ -52,7 +52,7 @@ fn status_and_settings_have_their_shape() {
     assert!(status["counters"]["requests"].is_u64(), "{status}");
     assert_eq!(status["watchdog"], json!({"timeout_ms": 0, "tripped": false}));
     assert_eq!(status["storage"], json!({"ok": true, "records": 0, "erases": 0}));
-    assert_eq!(status["admin"], json!({"password_set": false}));
+    assert_eq!(status["admin"], json!({"password_set": false, "first_password_open": true}));
 
     let settings = ok(sim.get("/api/settings"));
     let groups: Vec<&str> = settings.as_object().unwrap().keys().map(String::as_str).collect();
@@ -83,7 +83,8 @@ fn status_and_settings_have_their_shape() {
 #[test]
 fn a_change_applies_at_once_and_a_bad_one_changes_nothing() {
     let sim = HalSim::start(&["--robot", "idle"]);
-    let changed = ok(sim.put("/api/settings", r#"{"modbus": {"unit_id": 7}}"#, None));
+    let password = Some(sim.claim());
+    let changed = ok(sim.put("/api/settings", r#"{"modbus": {"unit_id": 7}}"#, password));
     assert_eq!(changed["modbus"]["unit_id"], "7");
     assert_eq!(changed["reboot_required"], false);
     sim.run(|| async {
@@ -97,7 +98,7 @@ fn a_change_applies_at_once_and_a_bad_one_changes_nothing() {
     // One bad field refuses the whole change, with a message per field.
     let before = ok(sim.get("/api/settings"));
     let refused =
-        sim.put("/api/settings", r#"{"modbus": {"unit_id": 300, "idle_timeout_s": 30, "colour": "red"}}"#, None);
+        sim.put("/api/settings", r#"{"modbus": {"unit_id": 300, "idle_timeout_s": 30, "colour": "red"}}"#, password);
     assert_eq!(refused.status, 400, "{}", refused.body);
     let errors = &refused.json()["errors"];
     assert_eq!(errors["modbus.unit_id"], "any, or 1-247");
@@ -111,7 +112,7 @@ fn a_change_applies_at_once_and_a_bad_one_changes_nothing() {
     });
 
     // A network setting waits for a reboot: saved, not in force.
-    let changed = ok(sim.put("/api/settings", r#"{"network": {"gateway": "198.18.0.254"}}"#, None));
+    let changed = ok(sim.put("/api/settings", r#"{"network": {"gateway": "198.18.0.254"}}"#, password));
     assert_eq!(changed["reboot_required"], true);
     assert_eq!(changed["network"]["gateway"], "198.18.0.254");
     assert_eq!(ok(sim.get("/api/status"))["network"]["gateway"], Value::Null);
@@ -152,8 +153,8 @@ fn a_password_and_allow_write_guard_changes() {
 fn settings_and_password_survive_a_restart_and_a_reboot() {
     let state = StateFile::new("restart");
     let mut sim = HalSim::start_with(Some(&state.0), 80, &["--robot", "idle"]);
-    ok(sim.put("/api/settings", r#"{"device": {"name": "kept"}, "modbus": {"unit_id": 7}}"#, None));
     ok(sim.put("/api/password", &format!(r#"{{"password": "{PASSWORD}"}}"#), None));
+    ok(sim.put("/api/settings", r#"{"device": {"name": "kept"}, "modbus": {"unit_id": 7}}"#, Some(PASSWORD)));
     assert_eq!(std::fs::metadata(&state.0).unwrap().len(), 65536);
 
     sim.restart();
@@ -195,7 +196,10 @@ fn settings_and_password_survive_a_restart_and_a_reboot() {
     assert_eq!(settings["device"]["name"], "mbio-53494d");
     assert_eq!(settings["modbus"]["port"], 502);
     assert_eq!(settings["admin"]["password_set"], false);
-    assert_eq!(ok(sim.get("/api/status"))["storage"], json!({"ok": true, "records": 0, "erases": 0}));
+    let status = ok(sim.get("/api/status"));
+    assert_eq!(status["storage"], json!({"ok": true, "records": 0, "erases": 0}));
+    assert_eq!(status["admin"], json!({"password_set": false, "first_password_open": true}), "new again");
+    assert_eq!(sim.put("/api/settings", r#"{"modbus": {"unit_id": 7}}"#, Some(PASSWORD)).status, 403);
 }
 
 /// xorshift64*: enough randomness for the moment of a cut, seeded from the clock.
@@ -220,6 +224,7 @@ const MAX_CUT_DELAY_US: u64 = 25_000;
 fn a_power_cut_during_a_save_leaves_the_old_or_the_new_settings() {
     let state = StateFile::new("cuts");
     let mut sim = HalSim::start_with(Some(&state.0), 80, &["--robot", "idle"]);
+    let credentials = format!("admin:{}", sim.claim());
     let seed = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap().as_nanos() as u64 | 1;
     let mut random = Random(seed);
     // (name, idle timeout) saved together: a mix would pair them wrong.
@@ -237,7 +242,7 @@ fn a_power_cut_during_a_save_leaves_the_old_or_the_new_settings() {
         let body = json!({"device": {"name": new.0}, "modbus": {"idle_timeout_s": new.1}}).to_string();
         let mut curl = sim
             .curl("/api/settings")
-            .args(["-X", "PUT", "-H", JSON, "--data-binary", &body])
+            .args(["-X", "PUT", "-H", JSON, "-u", &credentials, "--data-binary", &body])
             .stdout(std::process::Stdio::piped())
             .stderr(std::process::Stdio::null())
             .spawn()
@@ -331,6 +336,7 @@ fn http_never_delays_modbus() {
 #[test]
 fn a_hostile_page_s_requests_are_refused_and_change_nothing() {
     let sim = HalSim::start(&["--robot", "idle"]);
+    let password = Some(sim.claim());
     let change = r#"{"modbus": {"unit_id": 9}}"#;
     // A "simple" request: no preflight, so refused by its type.
     for (path, kind) in [
@@ -360,15 +366,15 @@ fn a_hostile_page_s_requests_are_refused_and_change_nothing() {
     assert_eq!(sim.http("/api/settings", &twice).status, 400);
     // An empty allow-list, an octal-looking address, a password with a NUL.
     for body in [r#"{"modbus": {"allow_write": ""}}"#, r#"{"modbus": {"allow_connect": "198.018.0.0/16"}}"#] {
-        assert_eq!(sim.put("/api/settings", body, None).status, 400, "{body}");
+        assert_eq!(sim.put("/api/settings", body, password).status, 400, "{body}");
     }
-    assert_eq!(sim.put("/api/password", r#"{"password": "correct\u0000horse"}"#, None).status, 400);
+    assert_eq!(sim.put("/api/password", r#"{"password": "correct\u0000horse"}"#, password).status, 400);
     // Nothing changed.
     let settings = ok(sim.get("/api/settings"));
     assert_eq!(settings["modbus"]["unit_id"], "any");
     assert_eq!(settings["modbus"]["allow_write"], "any");
-    assert_eq!(settings["admin"], json!({"password_set": false}));
-    assert_eq!(ok(sim.get("/api/status"))["storage"]["records"], 0, "nothing saved");
+    assert_eq!(settings["admin"], json!({"password_set": true}));
+    assert_eq!(ok(sim.get("/api/status"))["storage"]["records"], 1, "nothing saved but the password");
 
     // The fields every response carries, the page's and a refusal's alike.
     for args in [&["-H", "Accept-Encoding: gzip"][..], &["-H", "Host: evil.example"][..]] {

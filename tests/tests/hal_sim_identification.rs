@@ -146,7 +146,7 @@ fn the_user_application_name_follows_the_settings_api_at_once() {
         let default = object(&mut ctx, 0x06).await.unwrap();
         assert_eq!(default, b"mbio-53494d", "the default name, from hal-sim's MAC");
         assert_eq!(object(&mut ctx, 0x07).await, Err(ExceptionCode::IllegalDataAddress));
-        let reply = sim.put("/api/settings", r#"{"device": {"name": "press-9"}}"#, None);
+        let reply = sim.put("/api/settings", r#"{"device": {"name": "press-9"}}"#, Some(sim.claim()));
         assert_eq!(reply.status, 200, "{}", reply.body);
         assert_eq!(reply.json()["reboot_required"], false);
         // The same connection, the next request: the new name.

@@ -216,7 +216,7 @@ fn bad_controllers_give_errors_and_not_ready_and_never_torn_data() {
     for (mode, port) in modes.iter().zip(1600u16..) {
         // The setting changes at once, through the API, without a reboot.
         let body = format!(r#"{{"robot": {{"link": "{CONTROLLER_IP}:{port}"}}}}"#);
-        let reply = sim.put("/api/settings", &body, None);
+        let reply = sim.put("/api/settings", &body, Some(sim.claim()));
         assert_eq!(reply.status, 200, "{mode}: {reply:?}");
         let before = link_status(&sim)["link"]["errors"].as_u64().unwrap_or(0);
         match *mode {
@@ -263,7 +263,7 @@ fn bad_controllers_give_errors_and_not_ready_and_never_torn_data() {
         }
     }
     // No link: the simulated robot again (idle: STANDBY, 1).
-    let reply = sim.put("/api/settings", r#"{"robot": {"link": "none"}}"#, None);
+    let reply = sim.put("/api/settings", r#"{"robot": {"link": "none"}}"#, Some(sim.claim()));
     assert_eq!(reply.status, 200, "{reply:?}");
     sim.run(|| async {
         let mut ctx = sim.connect().await;

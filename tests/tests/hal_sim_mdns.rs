@@ -36,7 +36,7 @@ fn the_name_resolves_and_both_services_are_found_with_their_ports_and_text() {
 fn a_new_name_is_answered_and_the_old_one_no_longer() {
     let sim = HalSim::start(&["--robot", "idle", "--port", "1502"]);
     assert_eq!(resolve(sim.ns(), "mbio-53494d.local.", 5), [DEVICE_IP]);
-    let reply = sim.put("/api/settings", r#"{"device": {"name": "press-7"}}"#, None);
+    let reply = sim.put("/api/settings", r#"{"device": {"name": "press-7"}}"#, Some(sim.claim()));
     assert_eq!(reply.status, 200, "{}", reply.body);
     assert_eq!(resolve(sim.ns(), "press-7.local.", 5), [DEVICE_IP]);
     instance(&browse(sim.ns(), "_modbus._tcp.local.", 5), "press-7", "_modbus._tcp.local.", 1502);

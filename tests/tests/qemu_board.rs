@@ -56,9 +56,7 @@ fn the_board_checks_and_an_update_pass_against_the_image_under_its_bootloader_on
     let mut board = device(&qemu);
     // A device with a password, as one in the field should be: every
     // change the checks make (the upload too) must carry it.
-    let reply = board.change("PUT", "/api/password", &format!(r#"{{"password": "{PASSWORD}"}}"#));
-    reply.expect(200, "PUT /api/password");
-    board.password = Some(PASSWORD.into());
+    board.claim(PASSWORD);
     board.update = Some(file);
     assert!(board.check_all().is_empty(), "every check ran");
 

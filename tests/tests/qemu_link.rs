@@ -36,15 +36,21 @@ fn the_image_mirrors_a_controller_on_the_host_side() {
         let robot = ctx.read_holding_registers(ROBOT_REGISTERS, 4).await.unwrap().unwrap();
         assert_eq!(robot, NO_ROBOT, "no link set: no robot");
     });
+    // The owner's first password, then the change with it.
+    let put = |path: &str, body: &str, credentials: &[&str]| {
+        let output = ns
+            .command("curl")
+            .args(["-sS", "--max-time", "10", "-X", "PUT", "-H", "Content-Type: application/json"])
+            .args(credentials)
+            .args(["--data-binary", body, "-w", "\n%{http_code}", &format!("http://198.18.0.2{path}")])
+            .output()
+            .unwrap();
+        let reply = String::from_utf8_lossy(&output.stdout).into_owned();
+        assert!(reply.ends_with("\n200"), "PUT {path}: {reply} {}", String::from_utf8_lossy(&output.stderr));
+    };
+    put("/api/password", r#"{"password": "correct-horse"}"#, &[]);
     let body = format!(r#"{{"robot": {{"link": "{CONTROLLER_IP}:1502", "poll_ms": 100}}}}"#);
-    let output = ns
-        .command("curl")
-        .args(["-sS", "--max-time", "10", "-X", "PUT", "-H", "Content-Type: application/json"])
-        .args(["--data-binary", &body, "-w", "\n%{http_code}", "http://198.18.0.2/api/settings"])
-        .output()
-        .unwrap();
-    let reply = String::from_utf8_lossy(&output.stdout);
-    assert!(reply.ends_with("\n200"), "PUT /api/settings: {reply} {}", String::from_utf8_lossy(&output.stderr));
+    put("/api/settings", &body, &["-u", "admin:correct-horse"]);
     qemu.run(|| async {
         let mut ctx = qemu.connect().await;
         let head = wait_for(&mut ctx, "the controller's values", |head| head[3] == 2).await;

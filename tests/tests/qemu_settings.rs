@@ -13,6 +13,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use system_tests::qemu::{self, NO_ROBOT, Qemu, ROBOT_REGISTERS, SETTINGS, SETTINGS_LEN};
+use system_tests::update::{OWNER_PASSWORD, claim};
 use tokio_modbus::client::{Reader as _, tcp};
 use tokio_modbus::{ExceptionCode, Slave};
 
@@ -28,7 +29,9 @@ fn curl(addr: SocketAddr, method: &str, path: &str, body: Option<&str>) -> Resul
     let mut command = Command::new("curl");
     command.args(["-sS", "--max-time", "5", "-X", method, "-w", "\n%{http_code}"]);
     if let Some(body) = body {
-        command.args(["-H", "Content-Type: application/json", "--data-binary", body]);
+        // A change, with the password the test set first ([`claim`]).
+        command.args(["-H", "Content-Type: application/json", "-u", &format!("admin:{OWNER_PASSWORD}")]);
+        command.args(["--data-binary", body]);
     }
     let output = command.arg(format!("http://{addr}{path}")).stdin(Stdio::null()).output();
     let output = output.map_err(|e| format!("curl does not run: {e}"))?;
@@ -94,6 +97,7 @@ fn a_put_setting_applies_at_once_and_outlives_qemu() {
         let (status, body) = request(qemu.http_addr(), "GET", "/api/settings", None);
         assert_eq!((status, field(&body, "unit_id")), (200, "\"any\""), "{body}");
 
+        claim(qemu.http_addr());
         let change = r#"{"modbus": {"unit_id": 7}}"#;
         let (status, body) = request(qemu.http_addr(), "PUT", "/api/settings", Some(change));
         assert_eq!(status, 200, "{body}");
@@ -116,7 +120,7 @@ fn a_put_setting_applies_at_once_and_outlives_qemu() {
         assert_eq!(answer_to_unit(&qemu, 1).await, Err(ExceptionCode::GatewayTargetDevice));
         let (status, body) = request(qemu.http_addr(), "GET", "/api/status", None);
         assert_eq!(status, 200, "{body}");
-        assert!(body.contains(r#""storage":{"ok":true,"records":1,"#), "{body}");
+        assert!(body.contains(r#""storage":{"ok":true,"records":2,"#), "the password's and the setting's: {body}");
         // The CPU load, measured by the image's executor loop once a second has passed.
         let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
         let load = loop {
@@ -143,6 +147,7 @@ fn the_state_file_holds_the_settings_region_and_nothing_past_it_changes() {
     let qemu = boot(&state);
     qemu.run(|| async {
         qemu.connect().await;
+        claim(qemu.http_addr());
         let (status, body) =
             request(qemu.http_addr(), "PUT", "/api/settings", Some(r#"{"device": {"name": "cab-3"}}"#));
         assert_eq!(status, 200, "{body}");
@@ -179,6 +184,7 @@ fn a_zeroed_region_is_taken_as_blank_with_a_warning() {
     let qemu = boot(&state);
     qemu.run(|| async {
         qemu.connect().await;
+        claim(qemu.http_addr());
         let (status, body) = request(qemu.http_addr(), "PUT", "/api/settings", Some(r#"{"modbus": {"unit_id": 9}}"#));
         assert_eq!(status, 200, "{body}");
     });
@@ -237,6 +243,7 @@ fn a_power_cut_around_a_save_leaves_the_old_or_the_new_settings() {
     let qemu = boot(&state);
     qemu.run(|| async {
         qemu.connect().await;
+        claim(qemu.http_addr());
         let network = r#"{"network": {"mode": "static", "address": "10.0.2.15/24", "gateway": "10.0.2.2"}}"#;
         let (status, body) = request(qemu.http_addr(), "PUT", "/api/settings", Some(network));
         assert_eq!((status, field(&body, "reboot_required")), (200, "true"), "{body}");
@@ -267,7 +274,7 @@ fn a_power_cut_around_a_save_leaves_the_old_or_the_new_settings() {
         // the request leaves (0-15 ms: before, during or after the save).
         let mut client = Command::new("curl")
             .args(["-s", "--max-time", "2", "-o", "/dev/null", "-X", "PUT", "-H", "Content-Type: application/json"])
-            .args(["--data-binary", &generation(k)])
+            .args(["-u", &format!("admin:{OWNER_PASSWORD}"), "--data-binary", &generation(k)])
             .arg(format!("http://{}/api/settings", qemu.http_addr()))
             .stdin(Stdio::null())
             .spawn()

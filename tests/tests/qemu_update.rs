@@ -22,8 +22,8 @@ use std::time::{Duration, Instant};
 use serde_json::json;
 use system_tests::qemu::{self, ACTIVE, BOOTLOADER_STATE, DFU, NO_ROBOT, Qemu, ROBOT_REGISTERS};
 use system_tests::update::{
-    BOOT_MAGIC, Offline, SWAP_MAGIC, api_status, arm, bootloader_output, bootloader_without_check, installed_state,
-    put_settings, signed, state_word, test_dir, upload, write_at,
+    BOOT_MAGIC, Offline, SWAP_MAGIC, api_status, arm, bootloader_output, bootloader_without_check, claim,
+    installed_state, put_settings, signed, state_word, test_dir, upload, write_at,
 };
 use tokio_modbus::client::Reader as _;
 use tokio_modbus::prelude::{ConformityLevel, ReadCode};
@@ -141,6 +141,7 @@ fn an_update_uploaded_through_the_api_is_checked_swapped_in_and_confirmed() {
         json!({"state": "confirmed", "previous": null, "capacity": capacity}),
         "never updated"
     );
+    claim(qemu.http_addr());
     let (status, body) = upload(qemu.http_addr(), &forged);
     assert_eq!(status, 400, "{body}");
     assert!(body.contains("signature"), "{body}");
@@ -204,6 +205,7 @@ fn without_the_bootloaders_signature_check_no_update_is_taken() {
     let qemu = Qemu::slirp_booting(&without, &image, &state);
     qemu.wait_for_log("update: boot state Confirmed", Duration::from_secs(30));
     qemu.wait_for_log("Modbus TCP server at", Duration::from_secs(30));
+    claim(qemu.http_addr());
     let (status, body) = upload(qemu.http_addr(), &file);
     assert_eq!(status, 501, "{body}\n{}", qemu.log());
     assert!(body.contains("takes no updates"), "{body}");
@@ -302,6 +304,7 @@ fn an_update_that_confirms_after_the_first_expiry_is_kept() {
     let state = installed_state(&dir, &image);
     let qemu = Qemu::slirp_booting(&bootloader, &image, &state);
     qemu.wait_for_log("Modbus TCP server at", Duration::from_secs(30));
+    claim(qemu.http_addr());
     let (status, body) = put_settings(qemu.http_addr(), r#"{"network": {"dhcp_timeout_s": 20}}"#);
     assert_eq!(status, 200, "{body}");
     qemu.finish();

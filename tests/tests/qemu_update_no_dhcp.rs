@@ -73,6 +73,7 @@ fn an_update_without_dhcp_outlasts_the_dhcp_timeout_confirms_and_is_kept() {
     board.ns = qemu.ns();
     let settings = board.get("/api/settings").json();
     assert_eq!(settings["network"]["mode"], "dhcp", "the image's factory settings: {settings}");
+    board.claim("correct-horse");
     let change = format!(r#"{{"network": {{"dhcp_timeout_s": {DHCP_TIMEOUT_S}}}}}"#);
     let reply = board.change("PUT", "/api/settings", &change);
     reply.expect(200, "PUT /api/settings");

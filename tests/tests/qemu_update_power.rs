@@ -22,8 +22,8 @@ use std::time::{Duration, Instant};
 
 use system_tests::qemu::{self, BOOTLOADER_STATE, NO_ROBOT, Qemu, ROBOT_REGISTERS};
 use system_tests::update::{
-    BOOT_MAGIC, api_status, bootloader_output, installed_state, signed, state_word, state_words_written, test_dir,
-    upload,
+    BOOT_MAGIC, api_status, bootloader_output, claim, installed_state, owner_authorization, signed, state_word,
+    state_words_written, test_dir, upload,
 };
 use tokio_modbus::client::Reader as _;
 
@@ -105,6 +105,7 @@ fn boot(images: &Images, state: &Path) -> (Qemu, String) {
     let version = running_version(qemu.http_addr())
         .unwrap_or_else(|| panic!("Modbus answers, the API does not\n{}", bootloader_output(&qemu.stderr())));
     assert!(images.is_known(&version), "an image of neither version runs: {version}");
+    claim(qemu.http_addr());
     (qemu, version)
 }
 
@@ -118,7 +119,8 @@ fn upload_part(addr: SocketAddr, file: &[u8], len: usize) -> TcpStream {
     let mut stream = TcpStream::connect(addr).unwrap();
     let head = format!(
         "POST /api/firmware HTTP/1.1\r\nHost: {addr}\r\nContent-Type: application/octet-stream\r\n\
-         Content-Length: {}\r\n\r\n",
+         {}Content-Length: {}\r\n\r\n",
+        owner_authorization(),
         file.len()
     );
     stream.write_all(head.as_bytes()).unwrap();

@@ -75,6 +75,9 @@ pub struct Board {
     /// The user button was held at power-up ([`button`]): erase the settings first.
     #[cfg(feature = "http")]
     pub factory_reset: bool,
+    /// The user button, for its short presses once running ([`button::watch`]).
+    #[cfg(feature = "http")]
+    pub button: embassy_stm32::gpio::Input<'static>,
     /// Why the MCU last reset.
     #[cfg(feature = "http")]
     pub reset: safety::ResetCause,
@@ -154,11 +157,11 @@ pub fn init() -> Board {
     // B1 pulls PC13 up to 3V3 when pressed (UM1974); the internal pull-down
     // keeps it low when released, beside the board's own.
     #[cfg(feature = "http")]
-    let (watchdog, leds, factory_reset) = {
+    let (watchdog, leds, factory_reset, button) = {
         let (mut watchdog, mut leds) = (watchdog, leds);
         let button = embassy_stm32::gpio::Input::new(p.PC13, embassy_stm32::gpio::Pull::Down);
         let held = button::factory_reset_held(&button, &mut watchdog, &mut leds);
-        (watchdog, leds, held)
+        (watchdog, leds, held, button)
     };
 
     // Outputs first, all off.
@@ -258,6 +261,8 @@ pub fn init() -> Board {
         flash: flash::partitions(p.FLASH),
         #[cfg(feature = "http")]
         factory_reset,
+        #[cfg(feature = "http")]
+        button,
         #[cfg(feature = "http")]
         reset,
         #[cfg(feature = "http")]

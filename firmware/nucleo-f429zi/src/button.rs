@@ -1,6 +1,8 @@
-//! Factory reset by the user button (B1, PC13; docs/settings.md): held
-//! down at power-up for [`HOLD`], the saved settings and the admin password
-//! are erased before they are read.
+//! The user button (B1, PC13). Held down at power-up for [`HOLD`]: a
+//! factory reset (docs/settings.md), the saved settings and the admin
+//! password erased before they are read. Pressed briefly while running
+//! ([`watch`]): the physical act that lets the first admin password be set
+//! for 10 minutes more (docs/http-api.md, "The first password").
 //!
 //! It runs in [`crate::board::init`], before the executor runs anything
 //! else, so it waits by blocking and pets the independent watchdog itself,
@@ -14,7 +16,7 @@
 use embassy_stm32::gpio::{Input, Level};
 use embassy_stm32::peripherals::IWDG;
 use embassy_stm32::wdg::IndependentWatchdog;
-use embassy_time::{Duration, Instant, block_for};
+use embassy_time::{Duration, Instant, Ticker, block_for};
 
 use crate::leds::Leds;
 
@@ -62,4 +64,30 @@ fn set_all(leds: &mut Leds, level: Level) {
     leds.link.set_level(level);
     leds.traffic.set_level(level);
     leds.fault.set_level(level);
+}
+
+/// How often [`watch`] reads the button: a press is a human's, 100 ms or more.
+const LOOK: Duration = Duration::from_millis(50);
+
+/// Follows the button's presses while the device runs: each press shorter
+/// than [`HOLD`], once released, opens the first password's window
+/// (`Controller::open_first_password_window`; nothing once a password is
+/// set). Read every [`LOOK`]: PC13's EXTI line is input 14's (PE13).
+pub async fn watch(button: Input<'static>, control: &'static crate::Control) -> ! {
+    let mut ticker = Ticker::every(LOOK);
+    let mut pressed_at = None;
+    loop {
+        ticker.next().await;
+        match (button.is_high(), pressed_at) {
+            (true, None) => pressed_at = Some(Instant::now()),
+            (false, Some(at)) => {
+                pressed_at = None;
+                if at.elapsed() < HOLD {
+                    defmt::info!("user button pressed");
+                    control.open_first_password_window();
+                }
+            }
+            _ => {}
+        }
+    }
 }

@@ -129,8 +129,17 @@ async fn start(spawner: Spawner) {
         }
         spawner.spawn(unwrap!(confirm_task(stack, program.device, &program.settings.network)));
     }
+    #[cfg(feature = "http")]
+    spawner.spawn(unwrap!(button_task(board.button, program.control)));
     let config = program.server.config();
     defmt::info!("serving Modbus TCP on port {}, {} sessions", config.port, config.max_connections);
+}
+
+/// The user button's short presses: the first password's window.
+#[cfg(feature = "http")]
+#[embassy_executor::task]
+async fn button_task(button: embassy_stm32::gpio::Input<'static>, control: &'static Control) {
+    button::watch(button, control).await
 }
 
 /// Confirms this image once it serves, when it runs on trial after a swap.

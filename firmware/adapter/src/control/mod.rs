@@ -21,7 +21,7 @@ use core::cell::RefCell;
 use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::mutex::Mutex;
-use embassy_time::Duration;
+use embassy_time::{Duration, Instant};
 use embedded_storage_async::nor_flash::NorFlash;
 
 use crate::device::Device;
@@ -124,13 +124,25 @@ pub enum Refusal {
     Storage,
     /// This device cannot do it: the password could not be hashed.
     Unsupported,
+    /// No password is set and the first one may not be set now: only
+    /// within [`FIRST_PASSWORD_WINDOW`] of power-up or of a press of the
+    /// device's button ([`Controller::open_first_password_window`]).
+    FirstPasswordClosed,
 }
+
+/// How long after power-up, or after a press of the device's button, the
+/// first admin password may be set (docs/http-api.md, "The first
+/// password"): a device left unconfigured on a network cannot be claimed
+/// by someone else later.
+pub const FIRST_PASSWORD_WINDOW: Duration = Duration::from_secs(600);
 
 /// The settings and the password as saved and in force.
 struct State {
     settings: Settings,
     password: Password,
     storage: StorageStatus,
+    /// Until when the first password may be set (while none is).
+    first_password_until: Instant,
 }
 
 /// The settings service over a [`Platform`] and a settings [`Store`].
@@ -155,7 +167,12 @@ impl<'a, F: NorFlash, P: Platform> Controller<'a, F, P> {
     /// The service over `store` as `loaded` found it, with the server (and
     /// its device) built from `loaded.settings`.
     pub fn new(server: &'a Server<'a, Device<'a>>, platform: P, store: Store<F>, loaded: &Loaded) -> Self {
-        let state = State { settings: loaded.settings, password: loaded.password, storage: loaded.status };
+        let state = State {
+            settings: loaded.settings,
+            password: loaded.password,
+            storage: loaded.status,
+            first_password_until: Instant::now() + FIRST_PASSWORD_WINDOW,
+        };
         Self {
             server,
             platform,
@@ -235,9 +252,38 @@ impl<'a, F: NorFlash, P: Platform> Controller<'a, F, P> {
         self.password().verify(password)
     }
 
+    /// Whether the first admin password may be set now: none is set, and
+    /// the device started, or its button was pressed, less than
+    /// [`FIRST_PASSWORD_WINDOW`] ago.
+    pub fn first_password_open(&self) -> bool {
+        self.state.lock(|state| {
+            let state = state.borrow();
+            !state.password.is_set() && Instant::now() < state.first_password_until
+        })
+    }
+
+    /// The device's button was pressed (a physical act: only someone at the
+    /// device can): the first password may be set for
+    /// [`FIRST_PASSWORD_WINDOW`] from now. Nothing changes once one is set.
+    pub fn open_first_password_window(&self) {
+        let opened = self.state.lock(|state| {
+            let mut state = state.borrow_mut();
+            state.first_password_until = Instant::now() + FIRST_PASSWORD_WINDOW;
+            !state.password.is_set()
+        });
+        if opened {
+            info!("password: the first password may be set for {} s", FIRST_PASSWORD_WINDOW.as_secs());
+        }
+    }
+
     /// Sets the admin password (its length is the caller's to check).
-    /// Stored as a salted hash, never readable again.
+    /// Stored as a salted hash, never readable again. The first one only
+    /// while [`Self::first_password_open`].
     pub async fn set_password(&self, password: &[u8]) -> Result<(), Refusal> {
+        if !self.password_set() && !self.first_password_open() {
+            warn!("password: refused: the first one only within 10 minutes of power-up or of the button");
+            return Err(Refusal::FirstPasswordClosed);
+        }
         let Ok(hash) = PasswordHash::new(password, self.platform.salt()) else { return Err(Refusal::Unsupported) };
         let mut store = self.store.lock().await;
         let saved = store.save_password(&hash).await;

@@ -129,3 +129,28 @@ fn a_factory_reset_erases_and_reboots() {
     block_on(control.factory_reset());
     assert_eq!(control.platform().reboots.get(), 1);
 }
+
+/// The first password may be set within the window from the start, and
+/// not after it, until the button opens it again; a set password is
+/// changed at any time.
+#[test]
+fn the_first_password_only_within_the_window_of_power_up_or_the_button() {
+    let clock = Clock::take();
+    let control = controller(memory());
+    assert!(control.first_password_open(), "at power-up");
+    clock.advance(FIRST_PASSWORD_WINDOW - Duration::from_secs(1));
+    assert!(control.first_password_open(), "a second before the window closes");
+    clock.advance(Duration::from_secs(1));
+    assert!(!control.first_password_open(), "10 minutes after power-up");
+    assert_eq!(block_on(control.set_password(b"too late!")), Err(Refusal::FirstPasswordClosed));
+    assert!(!control.password_set(), "nothing saved");
+
+    control.open_first_password_window();
+    assert!(control.first_password_open(), "the button opens it again");
+    assert_eq!(block_on(control.set_password(b"the owner's")), Ok(()));
+    assert!(!control.first_password_open(), "closed once a password is set");
+
+    clock.advance(FIRST_PASSWORD_WINDOW * 3);
+    assert_eq!(block_on(control.set_password(b"a new one")), Ok(()), "a change of a set password needs no window");
+    assert!(block_on(control.verify_password(b"a new one")));
+}

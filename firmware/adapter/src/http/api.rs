@@ -31,6 +31,13 @@ const MAX_UNKNOWN_LISTED: usize = 8;
 /// The group of the admin password, which `PUT /api/settings` does not set.
 const ADMIN: &str = "admin";
 
+/// Why a change is refused while no admin password is set.
+const NO_PASSWORD_YET: &str =
+    "no admin password is set: set one first (PUT /api/password); until then no other change is taken";
+/// Why the first password is refused after the window.
+const FIRST_PASSWORD_CLOSED: &str = "the first password may be set only within 10 minutes of power-up or of a \
+     short press of the device's button: press it (or restart the device), then set it";
+
 /// What a request asks for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum Endpoint {
@@ -185,7 +192,7 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
             out.text(" bytes\"}}");
             return Ok((Reply::new(Status::CONTENT_TOO_LARGE), None));
         }
-        if let Err(reply) = self.authorize(&incoming.request, out).await {
+        if let Err(reply) = self.authorize(&incoming.request, out, false).await {
             return Ok((reply, None));
         }
         let _change = self.http.changes.lock().await;
@@ -263,7 +270,7 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
             let message = "a change must be sent as Content-Type: application/json";
             return refusal(out, Status::UNSUPPORTED_MEDIA_TYPE, "request", message);
         }
-        if let Err(reply) = self.authorize(request, out).await {
+        if let Err(reply) = self.authorize(request, out, endpoint == Endpoint::PutPassword).await {
             return reply;
         }
         match endpoint {
@@ -295,8 +302,10 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
     }
 
     /// Every change comes from an address `modbus.allow_write` admits (403),
-    /// with the admin password once one is set (401).
-    async fn authorize(&self, request: &Request<'_>, out: &mut Out<'_>) -> Result<(), Reply> {
+    /// with the admin password once one is set (401); until one is set, the
+    /// only change taken is setting it (`first_password`; 403 for any
+    /// other), within the settings service's window for it.
+    async fn authorize(&self, request: &Request<'_>, out: &mut Out<'_>, first_password: bool) -> Result<(), Reply> {
         let control = self.control();
         let may_write = self.peer.is_some_and(|peer| control.server().with_config(|c| c.access.may_write(peer)));
         if !may_write {
@@ -304,7 +313,10 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
             return Err(refusal(out, Status::FORBIDDEN, "request", message));
         }
         if !control.password_set() {
-            return Ok(());
+            if first_password {
+                return Ok(());
+            }
+            return Err(refusal(out, Status::FORBIDDEN, "request", NO_PASSWORD_YET));
         }
         let mut buf = [0u8; MAX_CREDENTIALS_LEN];
         let header = request.authorization;
@@ -389,8 +401,12 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
             return Reply::new(Status::BAD_REQUEST);
         }
         let password = password.get(..len.unwrap_or(0)).unwrap_or_default();
-        if let Err(refused) = self.control().set_password(password).await {
-            return refused_change(out, refused, "the password was not saved; nothing changed");
+        match self.control().set_password(password).await {
+            Ok(()) => {}
+            Err(Refusal::FirstPasswordClosed) => {
+                return refusal(out, Status::FORBIDDEN, "password", FIRST_PASSWORD_CLOSED);
+            }
+            Err(refused) => return refused_change(out, refused, "the password was not saved; nothing changed"),
         }
         out.text("{\"admin\":{\"password_set\":true}}");
         Reply::new(Status::OK)
@@ -510,6 +526,8 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
         }
         out.text(",\"admin\":{\"password_set\":");
         out.boolean(control.password_set());
+        out.text(",\"first_password_open\":");
+        out.boolean(control.first_password_open());
         out.text("}}");
     }
 }
@@ -881,6 +899,7 @@ fn refused_change(out: &mut Out<'_>, refused: Refusal, message: &str) -> Reply {
     let status = match refused {
         Refusal::Storage => Status::INTERNAL_SERVER_ERROR,
         Refusal::Unsupported => Status::NOT_IMPLEMENTED,
+        Refusal::FirstPasswordClosed => Status::FORBIDDEN,
     };
     refusal(out, status, "request", message)
 }

@@ -50,6 +50,8 @@ pub struct TestPlatform {
     pub reboots: Cell<usize>,
     /// The settings flash fails while set.
     pub flash_fails: &'static Cell<bool>,
+    /// Records in the settings flash when the test began ([`saved`]).
+    pub records_at_start: Cell<u32>,
     /// The last update file received, and the length of each chunk it came in.
     #[cfg(feature = "update")]
     pub firmware: RefCell<Vec<u8>>,
@@ -137,6 +139,7 @@ pub fn control() -> &'static TestControl {
         located: Cell::new(None),
         reboots: Cell::new(0),
         flash_fails: fails,
+        records_at_start: Cell::new(0),
         #[cfg(feature = "update")]
         firmware: RefCell::default(),
         #[cfg(feature = "update")]
@@ -149,15 +152,36 @@ pub fn control() -> &'static TestControl {
     Box::leak(Box::new(Controller::new(server, platform, store, &loaded)))
 }
 
-/// The API over a fresh [`control`] (leaked: tests only).
+/// The admin password of [`api`]'s device.
+pub const OWNER_PASSWORD: &str = "owner-pass";
+
+/// The API over a fresh [`control`] whose admin password is set to
+/// [`OWNER_PASSWORD`], as a device in service is (leaked: tests only):
+/// changes need [`owner`]'s credentials.
 pub fn api() -> &'static TestHttp {
+    let http = unowned_api();
+    embassy_futures::block_on(http.control().set_password(OWNER_PASSWORD.as_bytes())).expect("the first password");
+    http.control().platform().records_at_start.set(http.control().storage().records);
+    http
+}
+
+/// The API over a fresh [`control`] with no admin password yet, as a new
+/// device is (leaked: tests only).
+pub fn unowned_api() -> &'static TestHttp {
     Box::leak(Box::new(Http::new(control(), HTTP_PORT)))
 }
 
-/// Records saved in the settings flash: each change saved adds one (the
-/// settings, or the password).
+/// `Authorization: Basic` for `admin` and [`OWNER_PASSWORD`].
+pub fn owner() -> String {
+    basic(OWNER_PASSWORD)
+}
+
+/// Records saved in the settings flash since the test began (the
+/// owner's password [`api`] sets is not counted): each change saved adds
+/// one (the settings, or the password).
 pub fn saved(http: &TestHttp) -> u32 {
-    http.control().storage().records
+    let control = http.control();
+    control.storage().records - control.platform().records_at_start.get()
 }
 
 /// A response as the client read it.

@@ -5,7 +5,7 @@ use embassy_time::{Duration, Instant};
 use proptest::prelude::*;
 use serde_json::json;
 
-use super::testing::{CLIENT, Connection, HOST, Response, api, basic, exchange, request, saved};
+use super::testing::{CLIENT, Connection, HOST, Response, api, basic, exchange, owner, request, saved, unowned_api};
 use super::*;
 use crate::server::testing::Clock;
 use crate::settings::{Field, Settings};
@@ -28,8 +28,9 @@ fn send(
     response.expect("a whole response")
 }
 
+/// `PUT /api/settings` with the owner's credentials.
 fn put_settings(http: &'static testing::TestHttp, clock: &Clock, body: &str) -> Response {
-    send(http, clock, "PUT", "/api/settings", "", body)
+    send(http, clock, "PUT", "/api/settings", &owner(), body)
 }
 
 #[test]
@@ -73,8 +74,8 @@ fn the_status_document_shows_the_device() {
     assert_eq!(status["counters"].as_object().unwrap().len(), 15);
     assert_eq!(status["counters"]["requests"], 0);
     assert_eq!(status["watchdog"], json!({"timeout_ms": 0, "tripped": false}));
-    assert_eq!(status["storage"], json!({"ok": true, "records": 0, "erases": 0}), "an empty store");
-    assert_eq!(status["admin"], json!({"password_set": false}));
+    assert_eq!(status["storage"], json!({"ok": true, "records": 1, "erases": 0}), "the owner's password alone");
+    assert_eq!(status["admin"], json!({"password_set": true, "first_password_open": false}));
 }
 
 #[test]
@@ -299,10 +300,13 @@ fn a_failed_save_changes_nothing() {
     assert_eq!(response.json()["errors"]["request"], "the settings were not saved; nothing changed");
     assert_eq!(control.settings(), Settings::DEFAULT);
     assert_eq!(control.server().config().policy.unit_id, None, "nothing in force either");
-    let response = send(http, &clock, "PUT", "/api/password", "", r#"{"password": "s3cret-pass"}"#);
+    let response = send(http, &clock, "PUT", "/api/password", &owner(), r#"{"password": "s3cret-pass"}"#);
     assert_eq!(response.status, 500);
     assert_eq!(response.json()["errors"]["request"], "the password was not saved; nothing changed");
-    assert!(!control.password_set());
+    assert!(
+        embassy_futures::block_on(control.verify_password(testing::OWNER_PASSWORD.as_bytes())),
+        "the old one stays"
+    );
     assert_eq!(get(http, &clock, "/api/status").json()["storage"]["ok"], false);
 }
 
@@ -376,8 +380,8 @@ fn a_page_of_another_site_changes_nothing_and_reads_nothing() {
     assert_eq!(raw("GET", "/api/status", &format!("Host: {HOST}\r\nOrigin: null\r\n"), "").status, 403);
     assert_eq!(saved(http), 0);
     assert_eq!(http.control().platform().located.get(), None, "never blinked");
-    // The device's own page: its origin, JSON.
-    let response = raw("PUT", "/api/settings", &format!("{json}Origin: http://{HOST}\r\n"), body);
+    // The device's own page: its origin, JSON, the owner's password.
+    let response = raw("PUT", "/api/settings", &format!("{json}Origin: http://{HOST}\r\n{}", owner()), body);
     assert_eq!(response.status, 200);
     assert_eq!(saved(http), 1);
 }
@@ -451,7 +455,7 @@ fn changes_come_only_from_addresses_allow_write_admits() {
 #[test]
 fn the_password_is_set_first_freely_then_only_with_the_current_one() {
     let clock = Clock::take();
-    let http = api();
+    let http = unowned_api();
     let control = http.control();
     for (body, message) in [
         (r#"{"password": "short"}"#, json!({"password": "8-64 bytes"})),
@@ -488,7 +492,7 @@ fn reboot_factory_reset_and_locate() {
     let clock = Clock::take();
     let http = api();
     let control = http.control();
-    let (response, result) = exchange(http, &clock, Some(CLIENT), &request("POST", "/api/reboot", "", ""));
+    let (response, result) = exchange(http, &clock, Some(CLIENT), &request("POST", "/api/reboot", &owner(), ""));
     let response = response.unwrap();
     assert_eq!((response.status, response.json()), (202, json!({"rebooting": true})));
     assert_eq!(result, Ok(Some(Action::Reboot)), "left to the caller, after the connection closes");
@@ -497,13 +501,13 @@ fn reboot_factory_reset_and_locate() {
     embassy_futures::block_on(http.perform(Action::Reboot));
     assert_eq!(platform.reboots.get(), 1);
 
-    let (response, result) = exchange(http, &clock, Some(CLIENT), &request("POST", "/api/factory-reset", "", ""));
+    let (response, result) = exchange(http, &clock, Some(CLIENT), &request("POST", "/api/factory-reset", &owner(), ""));
     assert_eq!(response.unwrap().json(), json!({"factory_reset": true, "rebooting": true}));
     assert_eq!(result, Ok(Some(Action::FactoryReset)));
     embassy_futures::block_on(http.perform(Action::FactoryReset));
     assert_eq!((platform.reboots.get(), saved(http)), (2, 0), "erased, then rebooted");
 
-    let (response, result) = exchange(http, &clock, Some(CLIENT), &request("POST", "/api/locate", "", "{}"));
+    let (response, result) = exchange(http, &clock, Some(CLIENT), &request("POST", "/api/locate", &owner(), "{}"));
     assert_eq!(response.unwrap().json(), json!({"locating_s": 10}));
     assert_eq!(result, Ok(None));
     assert_eq!(platform.located.get(), Some(LOCATE_DURATION));
@@ -619,7 +623,7 @@ fn a_half_sent_request_times_out() {
 fn every_prefix_of_a_request_is_waited_on_then_answered_or_closed() {
     let _clock = Clock::take();
     let http = api();
-    let whole = request("PUT", "/api/settings", "", r#"{"modbus": {"unit_id": 7}}"#);
+    let whole = request("PUT", "/api/settings", &owner(), r#"{"modbus": {"unit_id": 7}}"#);
     for cut in 0..whole.len() {
         let mut connection = Connection::open(http, Some(CLIENT));
         connection.wire.send(&whole[..cut]);
@@ -880,7 +884,7 @@ mod firmware {
         let clock = Clock::take();
         let http = api();
         let file = file(TEST_FIRMWARE_CAPACITY);
-        let (response, result) = exchange(http, &clock, Some(CLIENT), &upload("", &file));
+        let (response, result) = exchange(http, &clock, Some(CLIENT), &upload(&owner(), &file));
         let response = response.unwrap();
         assert_eq!(response.status, 202);
         let crate::io::Version { major, minor, patch } = TEST_FIRMWARE_VERSION;
@@ -896,7 +900,7 @@ mod firmware {
         for size in [1, 5, 700] {
             let mut connection = Connection::open(http, Some(CLIENT));
             connection.wire.read_sizes([size]);
-            connection.wire.send(&upload("", &file[..1000]));
+            connection.wire.send(&upload(&owner(), &file[..1000]));
             assert!(connection.poll(), "size {size}");
             assert_eq!(connection.result, Some(Ok(Some(Action::Reboot))));
             assert!(*control.platform().firmware.borrow() == file[..1000]);
@@ -958,6 +962,11 @@ mod firmware {
         for method in ["GET", "PUT"] {
             assert_eq!(send(http, &clock, method, "/api/firmware", "", "").status, 405);
         }
+        // A device without a password takes no update, only its first password.
+        let http = unowned_api();
+        let (response, result) = exchange(http, &clock, Some(CLIENT), &upload("", &file));
+        assert_eq!((response.unwrap().status, result), (403, Ok(None)));
+        assert!(http.control().platform().firmware_chunks.borrow().is_empty(), "nothing reached the updater");
     }
 
     #[test]
@@ -981,15 +990,15 @@ mod firmware {
             .platform()
             .firmware_refusal
             .set(Some(crate::update::Error::Signature(crate::update::SignatureError::Mismatch)));
-        let (response, result) = exchange(http, &clock, Some(CLIENT), &upload("", &file(3000)));
+        let (response, result) = exchange(http, &clock, Some(CLIENT), &upload(&owner(), &file(3000)));
         let response = response.unwrap();
         assert_eq!((response.status, result), (400, Ok(None)));
         assert_eq!(response.json(), json!({"errors": {"firmware": "the image's signature is not valid"}}));
         control.platform().firmware_refusal.set(Some(crate::update::Error::Config));
-        let (response, result) = exchange(http, &clock, Some(CLIENT), &upload("", &file(10)));
+        let (response, result) = exchange(http, &clock, Some(CLIENT), &upload(&owner(), &file(10)));
         assert_eq!((response.unwrap().status, result), (500, Ok(None)));
         // Cut off: the connection closes before the whole file came.
-        let whole = upload("", &file(3000));
+        let whole = upload(&owner(), &file(3000));
         let mut connection = Connection::open(http, Some(CLIENT));
         connection.wire.send(&whole[..whole.len() - 1]);
         assert!(!connection.poll(), "waits for the rest");
@@ -998,4 +1007,58 @@ mod firmware {
         assert_eq!(connection.result, Some(Err(Error::BadRequest)));
         assert_eq!(control.platform().reboots.get(), 0);
     }
+}
+
+/// A new device takes no change but its first password, and that only
+/// within 10 minutes of power-up or of a press of its button; then the
+/// password guards every change.
+#[test]
+fn until_a_password_is_set_only_setting_it_is_taken_and_only_in_its_window() {
+    let clock = Clock::take();
+    let http = unowned_api();
+    let control = http.control();
+    let admin = get(http, &clock, "/api/status").json()["admin"].clone();
+    assert_eq!(admin, json!({"password_set": false, "first_password_open": true}));
+    let no_password =
+        "no admin password is set: set one first (PUT /api/password); until then no other change is taken";
+    for (method, path, body) in [
+        ("PUT", "/api/settings", r#"{"modbus": {"unit_id": 7}}"#),
+        ("POST", "/api/reboot", ""),
+        ("POST", "/api/factory-reset", ""),
+        ("POST", "/api/locate", ""),
+    ] {
+        let (response, result) = exchange(http, &clock, Some(CLIENT), &request(method, path, "", body));
+        let response = response.unwrap();
+        assert_eq!((response.status, response.json()), (403, json!({"errors": {"request": no_password}})), "{path}");
+        assert_eq!(result, Ok(None), "{path}: nothing left to do");
+    }
+    assert_eq!((saved(http), control.platform().reboots.get(), control.platform().located.get()), (0, 0, None));
+
+    // Ten minutes after power-up nobody can claim it over the network.
+    clock.advance(crate::control::FIRST_PASSWORD_WINDOW);
+    assert_eq!(get(http, &clock, "/api/status").json()["admin"]["first_password_open"], false);
+    let claim = r#"{"password": "a claimant"}"#;
+    let response = send(http, &clock, "PUT", "/api/password", "", claim);
+    assert_eq!(response.status, 403);
+    assert!(
+        response.json()["errors"]["password"]
+            .as_str()
+            .unwrap()
+            .starts_with("the first password may be set only within 10 minutes")
+    );
+    assert!(!control.password_set());
+    assert_eq!(saved(http), 0);
+
+    // The owner presses the button: ten more minutes.
+    control.open_first_password_window();
+    assert_eq!(get(http, &clock, "/api/status").json()["admin"]["first_password_open"], true);
+    assert_eq!(send(http, &clock, "PUT", "/api/password", "", claim).status, 200);
+    assert_eq!(
+        put_settings(http, &clock, r#"{"modbus": {"unit_id": 7}}"#).status,
+        401,
+        "the owner's password is not this one"
+    );
+    let response = send(http, &clock, "PUT", "/api/settings", &basic("a claimant"), r#"{"modbus": {"unit_id": 7}}"#);
+    assert_eq!(response.status, 200);
+    assert_eq!(control.settings().modbus.unit_id, Some(7));
 }
