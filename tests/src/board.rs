@@ -269,7 +269,12 @@ impl<'a> Board<'a> {
         }
         assert!(settings["modbus"]["port"].is_u64(), "{settings}");
         assert!(settings["network"]["dhcp_timeout_s"].is_u64(), "{settings}");
-        assert_eq!(settings["admin"], status["admin"], "settings and status disagree on the password");
+        let password_set = &settings["admin"]["password_set"];
+        assert_eq!(password_set, &status["admin"]["password_set"], "settings and status disagree on the password");
+        if password_set == false {
+            // A new device: whether it takes its first password now.
+            assert!(status["admin"]["first_password_open"].is_boolean(), "{status}");
+        }
         let name = settings["device"]["name"].as_str().unwrap_or_default();
         assert!(name.is_empty() || name == device["name"], "device.name {name:?}, in use {}", device["name"]);
         if self.password.is_none() && settings["admin"]["password_set"] == true {

@@ -134,7 +134,7 @@ fn a_put_setting_applies_at_once_and_outlives_qemu() {
         assert!(load.parse::<u8>().is_ok_and(|percent| percent <= 100), "cpu_load_percent: {load}");
     });
     let log = qemu.finish();
-    assert!(log.contains("settings: 1 records; storage ok: true"), "{log}");
+    assert!(log.contains("settings: 2 records; storage ok: true"), "the password's and the setting's: {log}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
