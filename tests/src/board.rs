@@ -826,18 +826,9 @@ pub async fn connect(addr: SocketAddr) -> Context {
     let deadline = Instant::now() + ANSWER_TIMEOUT;
     let mut last = String::new();
     while Instant::now() < deadline {
-        let attempt = async {
-            let mut ctx = tokio_modbus::client::tcp::connect(addr).await.map_err(|e| e.to_string())?;
-            match ctx.read_holding_registers(259, 1).await {
-                Ok(Ok(_)) => Ok(ctx),
-                Ok(Err(exception)) => Err(format!("exception {exception:?}")),
-                Err(error) => Err(error.to_string()),
-            }
-        };
-        match tokio::time::timeout(Duration::from_secs(3), attempt).await {
-            Ok(Ok(ctx)) => return ctx,
-            Ok(Err(error)) => last = error,
-            Err(_) => last = "no answer in 3 s".into(),
+        match crate::modbus_answers(addr, 259, Duration::from_secs(3)).await {
+            Ok(ctx) => return ctx,
+            Err(error) => last = error,
         }
         tokio::time::sleep(Duration::from_millis(200)).await;
     }

@@ -26,6 +26,7 @@ use test_support::framer;
 use tokio::io::{AsyncRead, AsyncReadExt};
 use tokio_modbus::client::Context;
 
+use crate::OWNER_PASSWORD;
 use crate::netns::{DEVICE_IP, Namespace, TAP};
 
 /// How long hal-sim may take to print its "listening" line.
@@ -52,9 +53,6 @@ pub fn binary() -> PathBuf {
     );
     path
 }
-
-/// The admin password the tests set as a device's first ([`HalSim::claim`]).
-pub const OWNER_PASSWORD: &str = "correct-horse";
 
 /// A running hal-sim in a namespace of its own; killed (and the namespace
 /// deleted) on drop.

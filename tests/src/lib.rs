@@ -16,6 +16,28 @@ use std::future::Future;
 use std::time::Duration;
 
 use netns::Namespace;
+use tokio_modbus::client::{Context, Reader as _};
+
+/// The admin password the tests give a device first (a new device takes
+/// no other change until one is set: docs/http-api.md, "The first password").
+pub const OWNER_PASSWORD: &str = "correct-horse";
+/// The `Authorization` field for `admin` and [`OWNER_PASSWORD`], as curl's
+/// `-u admin:correct-horse` sends it (base64 of `admin:correct-horse`).
+pub const OWNER_AUTHORIZATION: &str = "Authorization: Basic YWRtaW46Y29ycmVjdC1ob3JzZQ==";
+
+/// One try at a Modbus server: connect to `addr` and read holding register
+/// `register`, within `limit`. The connection once it answered, or why not.
+pub async fn modbus_answers(addr: std::net::SocketAddr, register: u16, limit: Duration) -> Result<Context, String> {
+    let attempt = async {
+        let mut ctx = tokio_modbus::client::tcp::connect(addr).await.map_err(|e| e.to_string())?;
+        match ctx.read_holding_registers(register, 1).await {
+            Ok(Ok(_)) => Ok(ctx),
+            Ok(Err(exception)) => Err(format!("exception {exception:?}")),
+            Err(error) => Err(error.to_string()),
+        }
+    };
+    tokio::time::timeout(limit, attempt).await.unwrap_or_else(|_| Err(format!("no answer in {limit:?}")))
+}
 
 /// The longest a test's client side may run before the test fails.
 pub const TEST_TIMEOUT: Duration = Duration::from_secs(60);

@@ -44,7 +44,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Mutex, OnceLock};
 use std::time::{Duration, Instant, SystemTime};
 
-use tokio_modbus::client::{Context, Reader as _};
+use tokio_modbus::client::Context;
 
 use crate::netns::{DEVICE_IP, Namespace, TAP};
 
@@ -644,18 +644,9 @@ impl Qemu {
             if let Some(status) = self.exit_status() {
                 panic!("QEMU exited ({status}); the firmware's log:\n{}\nQEMU: {}", self.log(), self.stderr());
             }
-            let attempt = async {
-                let mut ctx = tokio_modbus::client::tcp::connect(self.addr).await.map_err(|e| e.to_string())?;
-                match ctx.read_holding_registers(ROBOT_REGISTERS, 4).await {
-                    Ok(Ok(_)) => Ok(ctx),
-                    Ok(Err(exception)) => Err(format!("exception {exception:?}")),
-                    Err(error) => Err(error.to_string()),
-                }
-            };
-            match tokio::time::timeout(Duration::from_secs(2), attempt).await {
-                Ok(Ok(ctx)) => return ctx,
-                Ok(Err(error)) => last = error,
-                Err(_) => last = "no answer in 2 s".into(),
+            match crate::modbus_answers(self.addr, ROBOT_REGISTERS, Duration::from_secs(2)).await {
+                Ok(ctx) => return ctx,
+                Err(error) => last = error,
             }
             tokio::time::sleep(Duration::from_millis(100)).await;
         }

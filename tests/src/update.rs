@@ -9,6 +9,7 @@ use std::process::Command;
 use std::time::Duration;
 
 use crate::qemu::{self, PSRAM};
+use crate::{OWNER_AUTHORIZATION, OWNER_PASSWORD};
 
 /// embassy-boot's magic words in the boot state's first word: an update
 /// armed (the bootloader is to swap), and a confirmed image.
@@ -203,9 +204,6 @@ fn get_status(addr: SocketAddr) -> Option<String> {
     head.starts_with("HTTP/1.1 200").then(|| body.to_owned())
 }
 
-/// The admin password the tests give a device ([`claim`]).
-pub const OWNER_PASSWORD: &str = "correct-horse";
-
 /// Sets the device's first admin password, [`OWNER_PASSWORD`], as its
 /// owner does first: until one is set a device takes no other change
 /// (docs/http-api.md, "The first password"). A device that has one
@@ -235,7 +233,7 @@ fn send(addr: SocketAddr, method: &str, path: &str, content_type: &str, body: &[
     use std::io::{Read as _, Write as _};
     let mut stream = std::net::TcpStream::connect(addr).unwrap();
     stream.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
-    let credentials = if owner { owner_authorization() } else { String::new() };
+    let credentials = if owner { format!("{OWNER_AUTHORIZATION}\r\n") } else { String::new() };
     let head = format!(
         "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nContent-Type: {content_type}\r\n{credentials}Content-Length: {}\r\n\r\n",
         body.len()
@@ -252,34 +250,9 @@ fn send(addr: SocketAddr, method: &str, path: &str, content_type: &str, body: &[
     (status, body)
 }
 
-/// The `Authorization` field, with its line end, for [`OWNER_PASSWORD`].
-pub fn owner_authorization() -> String {
-    format!("Authorization: Basic {}\r\n", basic(OWNER_PASSWORD))
-}
-
-/// base64 of `admin:password`, for `Authorization: Basic`.
-fn basic(password: &str) -> String {
-    const TABLE: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    let plain = format!("admin:{password}");
-    let mut text = String::new();
-    for chunk in plain.as_bytes().chunks(3) {
-        let n = chunk.iter().enumerate().fold(0u32, |n, (i, &b)| n | u32::from(b) << (16 - 8 * i));
-        for i in 0..4 {
-            text.push(if i <= chunk.len() { char::from(TABLE[(n >> (18 - 6 * i) & 63) as usize]) } else { '=' });
-        }
-    }
-    text
-}
-
 #[cfg(test)]
 mod tests {
-    use super::{basic, bootloader_output};
-
-    #[test]
-    fn basic_credentials_are_base64() {
-        assert_eq!(basic("correct-horse"), "YWRtaW46Y29ycmVjdC1ob3JzZQ==");
-        assert_eq!(basic("a"), "YWRtaW46YQ==");
-    }
+    use super::bootloader_output;
 
     #[test]
     fn qemu_messages_are_taken_out_of_the_bootloader_output() {

@@ -8,10 +8,9 @@ use std::time::{Duration, Instant};
 
 use serde_json::{Value, json};
 use system_tests::hal_sim::{HalSim, Reply};
+use system_tests::{OWNER_AUTHORIZATION, OWNER_PASSWORD as PASSWORD};
 use tokio::io::AsyncWriteExt;
 use tokio_modbus::prelude::*;
-
-const PASSWORD: &str = "correct-horse";
 
 /// A fresh state file path in the temp dir, removed when dropped.
 struct StateFile(PathBuf);
@@ -361,8 +360,8 @@ fn a_hostile_page_s_requests_are_refused_and_change_nothing() {
     let foreign = ["-X", "PUT", "-H", JSON, "-H", "Origin: http://evil.example", "--data-binary", change];
     assert_eq!(sim.http("/api/settings", &foreign).status, 403);
     // Two Authorization fields: neither taken.
-    let basic = "Authorization: Basic YWRtaW46Y29ycmVjdC1ob3JzZQ=="; // admin:correct-horse
-    let twice = ["-X", "PUT", "-H", JSON, "-H", "Authorization: Basic eDp5", "-H", basic, "--data-binary", change];
+    let (wrong, right) = ("Authorization: Basic eDp5", OWNER_AUTHORIZATION);
+    let twice = ["-X", "PUT", "-H", JSON, "-H", wrong, "-H", right, "--data-binary", change];
     assert_eq!(sim.http("/api/settings", &twice).status, 400);
     // An empty allow-list, an octal-looking address, a password with a NUL.
     for body in [r#"{"modbus": {"allow_write": ""}}"#, r#"{"modbus": {"allow_connect": "198.018.0.0/16"}}"#] {

@@ -14,6 +14,7 @@
 
 use std::time::Duration;
 
+use system_tests::OWNER_PASSWORD;
 use system_tests::board::{self, Board, Discovery};
 use system_tests::netns::DEVICE_IP;
 use system_tests::qemu::{self, Qemu};
@@ -44,7 +45,6 @@ fn the_board_checks_pass_against_the_image_on_a_tap() {
 
 #[test]
 fn the_board_checks_and_an_update_pass_against_the_image_under_its_bootloader_on_a_tap() {
-    const PASSWORD: &str = "correct-horse";
     let (bootloader, image) = qemu::update_images();
     let (next, next_version) = qemu::update_next_image();
     let dir = test_dir("board-update");
@@ -56,7 +56,7 @@ fn the_board_checks_and_an_update_pass_against_the_image_under_its_bootloader_on
     let mut board = device(&qemu);
     // A device with a password, as one in the field should be: every
     // change the checks make (the upload too) must carry it.
-    board.claim(PASSWORD);
+    board.claim(OWNER_PASSWORD);
     board.update = Some(file);
     assert!(board.check_all().is_empty(), "every check ran");
 

@@ -7,6 +7,7 @@
 
 use std::time::{Duration, Instant};
 
+use system_tests::OWNER_PASSWORD;
 use system_tests::controller::{CONTROLLER_IP, Controller};
 use system_tests::qemu::{NO_ROBOT, Qemu, ROBOT_REGISTERS};
 use tokio_modbus::client::Reader as _;
@@ -48,9 +49,9 @@ fn the_image_mirrors_a_controller_on_the_host_side() {
         let reply = String::from_utf8_lossy(&output.stdout).into_owned();
         assert!(reply.ends_with("\n200"), "PUT {path}: {reply} {}", String::from_utf8_lossy(&output.stderr));
     };
-    put("/api/password", r#"{"password": "correct-horse"}"#, &[]);
+    put("/api/password", &format!(r#"{{"password": "{OWNER_PASSWORD}"}}"#), &[]);
     let body = format!(r#"{{"robot": {{"link": "{CONTROLLER_IP}:1502", "poll_ms": 100}}}}"#);
-    put("/api/settings", &body, &["-u", "admin:correct-horse"]);
+    put("/api/settings", &body, &["-u", &format!("admin:{OWNER_PASSWORD}")]);
     qemu.run(|| async {
         let mut ctx = qemu.connect().await;
         let head = wait_for(&mut ctx, "the controller's values", |head| head[3] == 2).await;

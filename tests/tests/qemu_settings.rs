@@ -12,8 +12,9 @@ use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
+use system_tests::OWNER_PASSWORD;
 use system_tests::qemu::{self, NO_ROBOT, Qemu, ROBOT_REGISTERS, SETTINGS, SETTINGS_LEN};
-use system_tests::update::{OWNER_PASSWORD, claim};
+use system_tests::update::claim;
 use tokio_modbus::client::{Reader as _, tcp};
 use tokio_modbus::{ExceptionCode, Slave};
 

@@ -17,6 +17,7 @@
 
 use std::time::{Duration, Instant};
 
+use system_tests::OWNER_PASSWORD;
 use system_tests::board::{self, Board};
 use system_tests::netns::DEVICE_IP;
 use system_tests::qemu::{self, BOOTLOADER_STATE, Qemu};
@@ -73,7 +74,7 @@ fn an_update_without_dhcp_outlasts_the_dhcp_timeout_confirms_and_is_kept() {
     board.ns = qemu.ns();
     let settings = board.get("/api/settings").json();
     assert_eq!(settings["network"]["mode"], "dhcp", "the image's factory settings: {settings}");
-    board.claim("correct-horse");
+    board.claim(OWNER_PASSWORD);
     let change = format!(r#"{{"network": {{"dhcp_timeout_s": {DHCP_TIMEOUT_S}}}}}"#);
     let reply = board.change("PUT", "/api/settings", &change);
     reply.expect(200, "PUT /api/settings");

@@ -20,10 +20,11 @@ use std::net::{SocketAddr, TcpStream};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+use system_tests::OWNER_AUTHORIZATION;
 use system_tests::qemu::{self, BOOTLOADER_STATE, NO_ROBOT, Qemu, ROBOT_REGISTERS};
 use system_tests::update::{
-    BOOT_MAGIC, api_status, bootloader_output, claim, installed_state, owner_authorization, signed, state_word,
-    state_words_written, test_dir, upload,
+    BOOT_MAGIC, api_status, bootloader_output, claim, installed_state, signed, state_word, state_words_written,
+    test_dir, upload,
 };
 use tokio_modbus::client::Reader as _;
 
@@ -119,8 +120,7 @@ fn upload_part(addr: SocketAddr, file: &[u8], len: usize) -> TcpStream {
     let mut stream = TcpStream::connect(addr).unwrap();
     let head = format!(
         "POST /api/firmware HTTP/1.1\r\nHost: {addr}\r\nContent-Type: application/octet-stream\r\n\
-         {}Content-Length: {}\r\n\r\n",
-        owner_authorization(),
+         {OWNER_AUTHORIZATION}\r\nContent-Length: {}\r\n\r\n",
         file.len()
     );
     stream.write_all(head.as_bytes()).unwrap();
