@@ -1,6 +1,7 @@
 //! The data map: the declarative table and the process image behind it. No I/O.
 
 mod image;
+pub mod names;
 pub mod points;
 pub mod table;
 
