@@ -6,6 +6,7 @@ pub mod board;
 pub mod browser;
 pub mod controller;
 pub mod dhcp;
+pub mod fleet;
 pub mod hal_sim;
 pub mod mdns;
 pub mod netns;
