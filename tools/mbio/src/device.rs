@@ -14,6 +14,21 @@ use crate::{Cli, Failure, Outcome};
 
 /// The environment variable that may hold the admin password.
 pub const PASSWORD_ENV: &str = "MBIO_PASSWORD";
+/// The environment variable that may hold a new admin password (`mbio password`).
+pub const NEW_PASSWORD_ENV: &str = "MBIO_NEW_PASSWORD";
+
+/// A password from the first line of `file`, else `$env`, else a prompt.
+pub fn read_password(file: Option<&std::path::Path>, env: &str, prompt: &str) -> Result<String, String> {
+    if let Some(path) = file {
+        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        return Ok(text.lines().next().unwrap_or_default().to_owned());
+    }
+    if let Ok(password) = std::env::var(env) {
+        return Ok(password);
+    }
+    rpassword::prompt_password(prompt)
+        .map_err(|e| format!("no password: none in a file or ${env}, and no prompt ({e})"))
+}
 /// How long one API request may take (the device answers within its own 5 s limits).
 const REQUEST_TIMEOUT: Duration = Duration::from_secs(15);
 /// How long an upload may take (the device takes one within 120 s).
@@ -80,17 +95,9 @@ impl Context {
 
     /// The admin password: `--password-file`, `$MBIO_PASSWORD`, or a prompt; asked once.
     pub fn password(&self) -> Outcome<String> {
-        let found = self.password.get_or_init(|| {
-            if let Some(path) = &self.password_file {
-                let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-                return Ok(text.lines().next().unwrap_or_default().to_owned());
-            }
-            if let Ok(password) = std::env::var(PASSWORD_ENV) {
-                return Ok(password);
-            }
-            rpassword::prompt_password("admin password: ")
-                .map_err(|e| format!("no password: none in --password-file or ${PASSWORD_ENV}, and no prompt ({e})"))
-        });
+        let found = self
+            .password
+            .get_or_init(|| read_password(self.password_file.as_deref(), PASSWORD_ENV, "admin password: "));
         match found {
             Ok(password) if !password.is_empty() => Ok(password.clone()),
             Ok(_) => Err(Failure::Denied("the password is empty".into())),
@@ -129,14 +136,18 @@ impl Context {
 
     /// `PUT path` with the JSON `body` and the password: the reply, any status.
     pub fn put(&self, device: &Device, path: &str, body: &Value) -> Outcome<Reply> {
-        let authorization = self.authorization()?;
-        let response = self
-            .agent(REQUEST_TIMEOUT)
-            .put(self.url(device, path))
-            .header("Content-Type", "application/json")
-            .header("Authorization", authorization)
-            .send(body.to_string());
-        read_reply(device, response)
+        self.put_as(device, path, body, true)
+    }
+
+    /// `PUT path` with the JSON `body`, with the password when `authorized`
+    /// (the first password is set without one).
+    pub fn put_as(&self, device: &Device, path: &str, body: &Value, authorized: bool) -> Outcome<Reply> {
+        let mut request =
+            self.agent(REQUEST_TIMEOUT).put(self.url(device, path)).header("Content-Type", "application/json");
+        if authorized {
+            request = request.header("Authorization", self.authorization()?);
+        }
+        read_reply(device, request.send(body.to_string()))
     }
 
     /// `POST /api/firmware` with `len` bytes from `body` (its Content-Length

@@ -123,6 +123,16 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Set the admin password: the first one (a new device takes no other change
+    /// until it has one), or a new one with the current one.
+    Password {
+        device: String,
+        /// A file whose first line is the new password, when one is set already
+        /// (else $MBIO_NEW_PASSWORD, else a prompt). The first password is the
+        /// usual one (--password-file, $MBIO_PASSWORD, a prompt).
+        #[arg(long, value_name = "FILE")]
+        new_password_file: Option<PathBuf>,
+    },
     /// Print a device's settings as a backup (JSON) on stdout: `mbio backup NAME > file.json`.
     Backup { device: String },
     /// Put a backup's settings on a device: shows the difference and asks first.
@@ -211,6 +221,9 @@ fn run(cli: &Cli) -> Outcome {
         Command::Status { device, json } => settings::status(&ctx, device, *json),
         Command::Get { device, key, json } => settings::get(&ctx, device, key.as_deref(), *json),
         Command::Set { device, changes, json } => settings::set(&ctx, device, changes, *json),
+        Command::Password { device, new_password_file } => {
+            settings::password(&ctx, device, new_password_file.as_deref())
+        }
         Command::Backup { device } => settings::backup(&ctx, device),
         Command::Restore { device, file, yes, network } => settings::restore(&ctx, device, file, *yes, *network),
         Command::Update { file, devices, all, parallel, keep_going, timeout, wait, json } => {

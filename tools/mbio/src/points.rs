@@ -363,7 +363,7 @@ pub fn list(json: bool) -> Outcome {
             let row = register_row(p.register);
             let access = match row.map(|r| r.access) {
                 Some(Permission::ReadWrite) => "read/write",
-                Some(Permission::Write) => "write",
+                Some(Permission::Write) => "write (reads back)",
                 Some(Permission::Read) => "read",
                 _ => "-",
             };

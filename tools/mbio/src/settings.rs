@@ -163,6 +163,27 @@ pub fn set(ctx: &Context, target: &str, changes: &[String], json: bool) -> Outco
     Ok(())
 }
 
+/// `mbio password NAME`: the first password (no credentials needed, only
+/// within the device's window), or a new one with the current one.
+pub fn password(ctx: &Context, target: &str, new_file: Option<&Path>) -> Outcome {
+    let device = ctx.resolve(target)?;
+    let status = ctx.get(&device, "/api/status")?;
+    let set = status.get("admin").and_then(|a| a.get("password_set")) == Some(&Value::Bool(true));
+    let (new, authorized) = if set {
+        let new = crate::device::read_password(new_file, crate::device::NEW_PASSWORD_ENV, "new admin password: ")
+            .map_err(Failure::Usage)?;
+        (new, true)
+    } else {
+        (ctx.password()?, false)
+    };
+    let reply = ctx.put_as(&device, "/api/password", &json!({"password": new}), authorized)?;
+    if reply.status != 200 {
+        return Err(crate::device::refusal(&device, &reply));
+    }
+    println!("{}: admin password {}", device.label, if set { "changed" } else { "set" });
+    Ok(())
+}
+
 /// `mbio backup NAME`: the settings (no secret: the password never leaves
 /// the device) and where they came from, as JSON on stdout.
 pub fn backup(ctx: &Context, target: &str) -> Outcome {

@@ -51,7 +51,7 @@ const fn p(
 
 /// Every named point, in register order.
 #[rustfmt::skip]
-pub static POINTS: [Point; 31] = [
+pub static POINTS: [Point; 33] = [
     p("di", reg::DIGITAL_INPUTS, 1, "", 0, "ControlBox digital inputs 1-16"),
     p("do", reg::DIGITAL_OUTPUTS, 1, "", 0, "ControlBox digital outputs 1-16"),
     p("ai.1", reg::ANALOG_INPUT_1, 1, "", 3, "ControlBox analog input 1 (mA or V, as its type)"),
@@ -81,8 +81,10 @@ pub static POINTS: [Point; 31] = [
     p("robot.task_orientation", reg::TASK_ORIENTATION, 3, "deg", 1, "task orientation A B C (Euler ZYZ)"),
     p("robot.task_velocity", reg::TASK_VELOCITY, 3, "mm/s", 1, "task velocity X Y Z"),
     p("robot.task_angular_velocity", reg::TASK_ANGULAR_VELOCITY, 3, "deg/s", 1, "task angular velocity A B C"),
-    p("robot.tool_offset", reg::TOOL_OFFSET_LENGTH, 6, "mm, deg", 1, "tool offset X Y Z (mm), A B C (deg)"),
-    p("robot.external_force", reg::EXTERNAL_FORCE, 6, "N, N m", 0, "external force X Y Z (N), moment X Y Z (N m)"),
+    p("robot.tool_offset_position", reg::TOOL_OFFSET_LENGTH, 3, "mm", 1, "tool offset X Y Z"),
+    p("robot.tool_offset_orientation", reg::TOOL_OFFSET_DEGREE, 3, "deg", 1, "tool offset A B C"),
+    p("robot.external_force", reg::EXTERNAL_FORCE, 3, "N", 0, "external force X Y Z"),
+    p("robot.external_moment", reg::EXTERNAL_MOMENT, 3, "N m", 0, "external moment X Y Z"),
 ];
 
 /// The named point `name` (exactly as in [`POINTS`]).
