@@ -60,8 +60,21 @@ pub fn bridge(ns: &Namespace, taps: usize) -> Vec<String> {
             ns.ip(&["tuntap", "add", "dev", tap, "mode", "tap"]).unwrap();
         }
         ns.ip(&["link", "set", tap, "master", BRIDGE]).unwrap();
-        ns.ip(&["link", "set", "dev", tap, "type", "bridge_slave", "learning", "off", "flood", "on", "mcast_flood", "on"])
-            .unwrap();
+        ns.ip(&[
+            "link",
+            "set",
+            "dev",
+            tap,
+            "type",
+            "bridge_slave",
+            "learning",
+            "off",
+            "flood",
+            "on",
+            "mcast_flood",
+            "on",
+        ])
+        .unwrap();
         ns.ip(&["link", "set", tap, "up"]).unwrap();
     }
     names

@@ -372,8 +372,12 @@ pub fn erased_state(path: &Path) -> std::io::Result<()> {
 
 /// How QEMU reaches the firmware's network.
 enum Network<'a> {
-    Slirp { port: u16, http_port: u16 },
-    Tap(&'a Namespace),
+    Slirp {
+        port: u16,
+        http_port: u16,
+    },
+    /// A namespace and the TAP in it.
+    Tap(&'a Namespace, &'a str),
 }
 
 /// A running QEMU with the image; stopped on drop (use [`Qemu::finish`] to
@@ -448,10 +452,27 @@ impl Qemu {
     fn tap_on(state: Option<&Path>, images: Option<(&Path, &Path)>) -> Self {
         let ns = Namespace::new().expect("a network namespace with a TAP");
         let ip: Ipv4Addr = DEVICE_IP.parse().expect("DEVICE_IP is an IPv4 address");
-        let mut qemu = Self::boot(Network::Tap(&ns), SocketAddr::from((ip, MODBUS_PORT)), state, images)
+        let mut qemu = Self::boot(Network::Tap(&ns, TAP), SocketAddr::from((ip, MODBUS_PORT)), state, images)
             .unwrap_or_else(|error| panic!("QEMU did not start:\n{error}"));
         qemu.ns = Some(ns);
         qemu
+    }
+
+    /// Boots `bootloader` over `image` on `state`, as [`Qemu::tap_booting`]
+    /// does, on the TAP `tap` of `ns`, a namespace the test made and keeps
+    /// (several QEMUs on one bridge: system_tests::fleet::bridge); the
+    /// firmware is expected at `ip`. [`Qemu::run`] then runs in this
+    /// process's namespace: reach the firmware from `ns` yourself.
+    pub fn tap_booting_in(
+        ns: &Namespace,
+        tap: &str,
+        ip: Ipv4Addr,
+        bootloader: &Path,
+        image: &Path,
+        state: &Path,
+    ) -> Self {
+        Self::boot(Network::Tap(ns, tap), SocketAddr::from((ip, MODBUS_PORT)), Some(state), Some((bootloader, image)))
+            .unwrap_or_else(|error| panic!("QEMU did not start:\n{error}"))
     }
 
     /// The namespace of a [`Qemu::tap`] QEMU.
@@ -487,18 +508,18 @@ impl Qemu {
         }
         let http_addr = match network {
             Network::Slirp { http_port, .. } => SocketAddr::from((Ipv4Addr::LOCALHOST, http_port)),
-            Network::Tap(_) => SocketAddr::new(addr.ip(), HTTP_PORT),
+            Network::Tap(..) => SocketAddr::new(addr.ip(), HTTP_PORT),
         };
         let nic = match network {
             Network::Slirp { port, http_port } => format!(
                 "user,model=lan9118,restrict=on,hostfwd=tcp:127.0.0.1:{port}-:{MODBUS_PORT},\
                  hostfwd=tcp:127.0.0.1:{http_port}-:{HTTP_PORT}"
             ),
-            Network::Tap(_) => format!("tap,ifname={TAP},script=no,downscript=no,model=lan9118"),
+            Network::Tap(_, tap) => format!("tap,ifname={tap},script=no,downscript=no,model=lan9118"),
         };
         let mut command = match network {
             Network::Slirp { .. } => Command::new("timeout"),
-            Network::Tap(ns) => ns.command("timeout"),
+            Network::Tap(ns, _) => ns.command("timeout"),
         };
         let monitor = dir.join("monitor.sock");
         command

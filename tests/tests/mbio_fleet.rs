@@ -50,7 +50,10 @@ fn mbio_find_finds_all_five_with_their_names() {
     let table = stdout(&output);
     for member in &fleet.members {
         let line = table.lines().find(|l| l.contains(&member.name)).unwrap_or_else(|| panic!("{table}"));
-        assert!(line.contains(&member.ip.to_string()) && line.contains("hal-sim") && line.contains("standby"), "{line}");
+        assert!(
+            line.contains(&member.ip.to_string()) && line.contains("hal-sim") && line.contains("standby"),
+            "{line}"
+        );
     }
     // A name resolves through mDNS for the other commands.
     let output = fleet.mbio(&["status", "press-4", "--json"]);
@@ -123,7 +126,10 @@ fn a_backup_restored_onto_a_replacement_makes_it_the_same_device_but_its_network
     // Asked and refused (no terminal: the answer on stdin): nothing changes, exit 5.
     let output = fleet.mbio_with_input(&["restore", &spare, file.to_str().unwrap()], "n\n");
     assert_exit(&output, 5);
-    assert!(stdout(&output).contains("modbus.unit_id") && stdout(&output).contains("device.name"), "the difference shown");
+    assert!(
+        stdout(&output).contains("modbus.unit_id") && stdout(&output).contains("device.name"),
+        "the difference shown"
+    );
     assert!(!stdout(&output).contains("network.gateway"), "the network is not restored without --network");
     assert_eq!(fleet.get(1, "/api/settings"), spare_before);
 
@@ -171,22 +177,44 @@ fn points_read_and_written_by_name_are_what_pymodbus_sees() {
 
     // Writes by name, then read back by pymodbus from the map's addresses.
     let output = fleet.mbio(&[
-        "write", "cell-3", "do.3=on", "do.16=on", "tool_do.2=on", "ao.1.type=voltage", "ao.1=7.5", "ao.2=12.25",
-        "gp.1=1234", "gp.128=-1",
+        "write",
+        "cell-3",
+        "do.3=on",
+        "do.16=on",
+        "tool_do.2=on",
+        "ao.1.type=voltage",
+        "ao.1=7.5",
+        "ao.2=12.25",
+        "gp.1=1234",
+        "gp.128=-1",
     ]);
     // gp is unsigned: -1 is refused before anything is sent.
     assert_exit(&output, 2);
     assert_eq!(pymodbus(&fleet, &ip, json!([["read_holding", 1, 1]])), json!([[0]]), "nothing written");
     let output = fleet.mbio(&[
-        "write", "cell-3", "do.3=on", "do.16=on", "tool_do.2=on", "ao.1.type=voltage", "ao.1=7.5", "ao.2=12.25",
-        "gp.1=1234", "gp.128=65535",
+        "write",
+        "cell-3",
+        "do.3=on",
+        "do.16=on",
+        "tool_do.2=on",
+        "ao.1.type=voltage",
+        "ao.1=7.5",
+        "ao.2=12.25",
+        "gp.1=1234",
+        "gp.128=65535",
     ]);
     assert_exit(&output, 0);
     let seen = pymodbus(
         &fleet,
         &ip,
-        json!([["read_holding", 1, 1], ["read_coils", 16, 16], ["read_holding", 16, 4], ["read_holding", 22, 1],
-               ["read_holding", 128, 1], ["read_holding", 255, 1]]),
+        json!([
+            ["read_holding", 1, 1],
+            ["read_coils", 16, 16],
+            ["read_holding", 16, 4],
+            ["read_holding", 22, 1],
+            ["read_holding", 128, 1],
+            ["read_holding", 255, 1]
+        ]),
     );
     assert_eq!(seen[0], json!([0x8004]), "do.3 and do.16");
     let coils: Vec<bool> = (1..=16).map(|n| n == 3 || n == 16).collect();
@@ -202,9 +230,23 @@ fn points_read_and_written_by_name_are_what_pymodbus_sees() {
 
     // Written by pymodbus, read by name.
     assert_eq!(fleet.members[0].control("set di 5 1"), "ok");
-    assert_eq!(pymodbus(&fleet, &ip, json!([["write_coil", 16, false], ["write_register", 129, 42]])), json!(["ok", "ok"]));
+    assert_eq!(
+        pymodbus(&fleet, &ip, json!([["write_coil", 16, false], ["write_register", 129, 42]])),
+        json!(["ok", "ok"])
+    );
     let output = fleet.mbio(&[
-        "read", "cell-3", "--json", "do.3", "do.1", "di", "di.5", "gp.2", "ao.1", "ao.1.type", "robot.joint_position", "robot.state",
+        "read",
+        "cell-3",
+        "--json",
+        "do.3",
+        "do.1",
+        "di",
+        "di.5",
+        "gp.2",
+        "ao.1",
+        "ao.1.type",
+        "robot.joint_position",
+        "robot.state",
         "robot.joint_current.2",
     ]);
     assert_exit(&output, 0);
@@ -219,7 +261,8 @@ fn points_read_and_written_by_name_are_what_pymodbus_sees() {
     assert_eq!(read["robot.state"]["name"], "standby");
     // The joints: pymodbus's registers (signed, 0.1 degree) are mbio's degrees.
     let raw = pymodbus(&fleet, &ip, json!([["read_holding", 270, 6], ["read_holding", 291, 1]]));
-    let degrees: Vec<f64> = raw[0].as_array().unwrap().iter().map(|v| f64::from(v.as_u64().unwrap() as u16 as i16) / 10.0).collect();
+    let degrees: Vec<f64> =
+        raw[0].as_array().unwrap().iter().map(|v| f64::from(v.as_u64().unwrap() as u16 as i16) / 10.0).collect();
     assert_eq!(read["robot.joint_position"], json!({"values": degrees, "unit": "deg"}));
     assert_eq!(read["robot.joint_current.2"]["value"], raw[1][0].as_f64().unwrap());
     assert_eq!(read["robot.joint_current.2"]["unit"], "mA");
