@@ -167,6 +167,6 @@ pub fn find(ctx: &Context, wait: f64, json: bool) -> Outcome {
             link,
         ]);
     }
-    println!("{table}");
+    say!("{table}");
     Ok(())
 }

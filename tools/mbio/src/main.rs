@@ -9,6 +9,14 @@
     allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::indexing_slicing, clippy::unreachable)
 )]
 
+/// `println!` that ends quietly when stdout is closed (`mbio find | head`).
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout(), $($arg)*);
+    }};
+}
+
 mod device;
 mod discover;
 mod points;
@@ -51,7 +59,7 @@ impl Failure {
         }
     }
 
-    fn message(&self) -> &str {
+    pub fn message(&self) -> &str {
         match self {
             Failure::Refused(m)
             | Failure::Unreachable(m)
@@ -240,7 +248,9 @@ fn run(cli: &Cli) -> Outcome {
         Command::Points { json } => points::list(*json),
         Command::Watch { device, interval, count } => watch::watch(&ctx, device, *interval, *count),
         Command::Completions { shell } => {
-            clap_complete::generate(*shell, &mut Cli::command(), "mbio", &mut std::io::stdout());
+            let mut script = Vec::new();
+            clap_complete::generate(*shell, &mut Cli::command(), "mbio", &mut script);
+            let _ = std::io::stdout().write_all(&script);
             Ok(())
         }
     }
@@ -248,7 +258,7 @@ fn run(cli: &Cli) -> Outcome {
 
 /// Prints `value` as pretty JSON on stdout.
 pub fn print_json(value: &serde_json::Value) {
-    println!("{}", serde_json::to_string_pretty(value).unwrap_or_default());
+    say!("{}", serde_json::to_string_pretty(value).unwrap_or_default());
 }
 
 #[cfg(test)]

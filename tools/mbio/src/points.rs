@@ -216,7 +216,7 @@ pub fn read(ctx: &Context, target: &str, specs: &[String], json: bool) -> Outcom
     } else {
         for (_, (lines, _)) in results {
             for line in lines {
-                println!("{line}");
+                say!("{line}");
             }
         }
     }
@@ -349,7 +349,7 @@ pub fn write(ctx: &Context, target: &str, specs: &[String]) -> Outcome {
                     answer(&device, spec, modbus.write_single_register(address, value).await)?;
                 }
             }
-            println!("{}: {spec}", device.label);
+            say!("{}: {spec}", device.label);
         }
         Outcome::Ok(())
     })
@@ -389,7 +389,7 @@ pub fn list(json: bool) -> Outcome {
                 .map(|k| crate::device::text(row.get(k).unwrap_or(&Value::Null))),
         );
     }
-    println!("{table}");
+    say!("{table}");
     Ok(())
 }
 

@@ -66,7 +66,7 @@ pub fn status(ctx: &Context, target: &str, json: bool) -> Outcome {
             format!("{} (previous {})", text(&update["state"]), text(&update["previous"])),
         ]);
     }
-    println!("{table}");
+    say!("{table}");
     Ok(())
 }
 
@@ -93,7 +93,7 @@ pub fn get(ctx: &Context, target: &str, key: Option<&str>, json: bool) -> Outcom
         if json {
             crate::print_json(value);
         } else {
-            println!("{}", text(value));
+            say!("{}", text(value));
         }
         return Ok(());
     }
@@ -103,7 +103,7 @@ pub fn get(ctx: &Context, target: &str, key: Option<&str>, json: bool) -> Outcom
     }
     for (group, fields) in groups {
         for (field, value) in fields.as_object().into_iter().flatten() {
-            println!("{group}.{field}={}", text(value));
+            say!("{group}.{field}={}", text(value));
         }
     }
     Ok(())
@@ -155,9 +155,9 @@ pub fn set(ctx: &Context, target: &str, changes: &[String], json: bool) -> Outco
     if json {
         crate::print_json(&saved);
     } else {
-        println!("{}: saved {} setting(s)", device.label, changes.len());
+        say!("{}: saved {} setting(s)", device.label, changes.len());
         if saved.get("reboot_required") == Some(&Value::Bool(true)) {
-            println!("a reboot is needed for the change to apply (network.*, modbus.port)");
+            say!("a reboot is needed for the change to apply (network.*, modbus.port)");
         }
     }
     Ok(())
@@ -180,7 +180,7 @@ pub fn password(ctx: &Context, target: &str, new_file: Option<&Path>) -> Outcome
     if reply.status != 200 {
         return Err(crate::device::refusal(&device, &reply));
     }
-    println!("{}: admin password {}", device.label, if set { "changed" } else { "set" });
+    say!("{}: admin password {}", device.label, if set { "changed" } else { "set" });
     Ok(())
 }
 
@@ -257,7 +257,7 @@ pub fn restore(ctx: &Context, target: &str, file: &Path, yes: bool, network: boo
         eprintln!("network settings left as they are (--network to restore them too)");
     }
     if changes.is_empty() {
-        println!("{}: nothing to change, its settings are the backup's", device.label);
+        say!("{}: nothing to change, its settings are the backup's", device.label);
         return Ok(());
     }
     let mut table = Table::new();
@@ -266,7 +266,7 @@ pub fn restore(ctx: &Context, target: &str, file: &Path, yes: bool, network: boo
     for (group, field, now, value) in &changes {
         table.add_row([format!("{group}.{field}"), text(now), text(value)]);
     }
-    println!("{}: {} setting(s) would change:\n{table}", device.label, changes.len());
+    say!("{}: {} setting(s) would change:\n{table}", device.label, changes.len());
     if !yes {
         eprint!("restore them? [y/N] ");
         let mut answer = String::new();
@@ -282,9 +282,9 @@ pub fn restore(ctx: &Context, target: &str, file: &Path, yes: bool, network: boo
         }
     }
     let saved = put_settings(ctx, &device, &Value::Object(document))?;
-    println!("{}: restored", device.label);
+    say!("{}: restored", device.label);
     if saved.get("reboot_required") == Some(&Value::Bool(true)) {
-        println!("a reboot is needed for some of it to apply (network.*, modbus.port)");
+        say!("a reboot is needed for some of it to apply (network.*, modbus.port)");
     }
     Ok(())
 }

@@ -19,6 +19,9 @@ use tokio_modbus::prelude::ReadCode;
 use crate::device::{Context, Device, errors, text};
 use crate::{Failure, Outcome};
 
+/// How long a device that took an update may keep answering before its reboot.
+const REBOOT_WAIT: Duration = Duration::from_secs(10);
+
 #[derive(Debug)]
 pub struct Options {
     pub parallel: usize,
@@ -80,9 +83,14 @@ fn wait_for_version(
     let addr = SocketAddr::from((device.ip, ctx.modbus_port));
     let deadline = Instant::now() + timeout;
     let mut last = None;
-    // The device reboots once its response has gone out: give it a moment
-    // so the old image is not the one that answers.
-    std::thread::sleep(Duration::from_secs(2));
+    // The device reboots once its response has gone out: wait until it
+    // stops answering (at most REBOOT_WAIT), so that the old image, which
+    // may carry the same version, is not taken for the new one.
+    let down_by = Instant::now() + REBOOT_WAIT;
+    while Instant::now() < down_by && runtime.block_on(identified_version(addr)).is_some() {
+        bar.tick();
+        std::thread::sleep(Duration::from_millis(200));
+    }
     while Instant::now() < deadline {
         if let Some(version) = runtime.block_on(identified_version(addr)) {
             if version == expected {
@@ -112,12 +120,12 @@ fn update_one(ctx: &Context, target: &str, file: &Path, len: u64, bars: &MultiPr
     };
     let device = match ctx.resolve(target) {
         Ok(device) => device,
-        Err(failure) => return fail(report, "failed", format!("{failure:?}")),
+        Err(failure) => return fail(report, "failed", failure.message().to_owned()),
     };
     report.address = Some(device.ip.to_string());
     match ctx.get(&device, "/api/status") {
         Ok(status) => report.before = status.get("device").and_then(|d| d.get("firmware")).map(text),
-        Err(failure) => return fail(report, "failed", format!("{failure:?}")),
+        Err(failure) => return fail(report, "failed", failure.message().to_owned()),
     }
     let reader = match std::fs::File::open(file) {
         Ok(reader) => reader,
@@ -126,7 +134,7 @@ fn update_one(ctx: &Context, target: &str, file: &Path, len: u64, bars: &MultiPr
     bar.set_message("sending");
     let reply = match ctx.upload(&device, len, bar.wrap_read(reader)) {
         Ok(reply) => reply,
-        Err(failure) => return fail(report, "failed", format!("{failure:?}")),
+        Err(failure) => return fail(report, "failed", failure.message().to_owned()),
     };
     if reply.status != 202 {
         let mut note = format!("refused ({})", reply.status);
@@ -170,6 +178,8 @@ pub fn rollout(ctx: &Context, file: &Path, targets: &[String], all: Option<f64>,
     if targets.is_empty() {
         return Err(Failure::Unreachable("no device to update".into()));
     }
+    // Asked once, before the progress bars start.
+    ctx.password()?;
     let reports: Vec<Mutex<Report>> = targets.iter().map(|t| Mutex::new(Report::new(t))).collect();
     let next = Mutex::new(0usize);
     let stop = AtomicBool::new(false);
@@ -222,7 +232,7 @@ pub fn rollout(ctx: &Context, file: &Path, targets: &[String], all: Option<f64>,
                 r.note.clone(),
             ]);
         }
-        println!("{table}");
+        say!("{table}");
     }
     if failed == 0 {
         Ok(())

@@ -73,7 +73,7 @@ pub fn watch(ctx: &Context, target: &str, interval: f64, count: u64) -> Outcome 
     loop {
         let body = match ctx.get(&device, "/api/status") {
             Ok(status) => screen(&device.label, &status),
-            Err(failure) => format!("{}: offline ({failure:?})\n", device.label),
+            Err(failure) => format!("{}: offline ({})\n", device.label, failure.message()),
         };
         // Home, clear, the screen.
         print!("\x1b[H\x1b[2J{body}");
