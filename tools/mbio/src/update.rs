@@ -234,11 +234,16 @@ pub fn rollout(ctx: &Context, file: &Path, targets: &[String], all: Option<f64>,
         }
         say!("{table}");
     }
+    let skipped = reports.iter().filter(|r| r.result == "skipped").count();
+    let updated = reports.len() - failed;
     if failed == 0 {
         Ok(())
-    } else if stop.load(Ordering::SeqCst) && !options.keep_going {
-        Err(Failure::Refused(format!("rollout stopped: {failed} of {} device(s) not updated", reports.len())))
+    } else if skipped > 0 {
+        Err(Failure::Refused(format!(
+            "rollout stopped at the first failure: {updated} updated, {} failed, {skipped} not tried (--keep-going tries every one)",
+            failed - skipped
+        )))
     } else {
-        Err(Failure::Refused(format!("{failed} of {} device(s) not updated", reports.len())))
+        Err(Failure::Refused(format!("{updated} updated, {failed} failed")))
     }
 }
