@@ -24,7 +24,7 @@ fn stderr(output: &std::process::Output) -> String {
 fn mbio_find_finds_all_five_with_their_names() {
     let names = ["cell-1", "cell-2", "cell-3", "press-4", "weld-5"];
     let fleet = Fleet::start(&names, &["--robot", "idle"]);
-    let output = fleet.mbio(&["find", "--json", "--wait", "4"]);
+    let output = fleet.mbio(&["find", "--json", "--wait", "6"]);
     assert_exit(&output, 0);
     let found: Value = serde_json::from_str(&stdout(&output)).expect("find --json prints JSON");
     let found = found.as_array().expect("an array");
@@ -45,7 +45,7 @@ fn mbio_find_finds_all_five_with_their_names() {
     assert_eq!(found.len(), names.len(), "only the fleet: {found:?}");
 
     // The table a person reads: a line per device, with its address.
-    let output = fleet.mbio(&["find", "--wait", "4"]);
+    let output = fleet.mbio(&["find", "--wait", "6"]);
     assert_exit(&output, 0);
     let table = stdout(&output);
     for member in &fleet.members {

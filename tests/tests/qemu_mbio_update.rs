@@ -150,7 +150,7 @@ fn a_rollout_stops_at_a_forged_file_and_updates_both_with_the_signed_one() {
         assert_eq!(status["update"]["previous"], old_version.as_str(), "{status}");
     }
     // The human summary names both.
-    let output = mbio(&["find", "--json"]);
+    let output = mbio(&["find", "--json", "--wait", "5"]);
     assert_exit(&output, 0);
     let found: Value = serde_json::from_str(&stdout(&output)).unwrap();
     assert_eq!(found.as_array().unwrap().len(), 2, "{found}");
