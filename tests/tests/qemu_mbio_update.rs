@@ -149,7 +149,7 @@ fn a_rollout_stops_at_a_forged_file_and_updates_both_with_the_signed_one() {
         assert_eq!(status["device"]["firmware"], next_version.as_str(), "{status}");
         assert_eq!(status["update"]["previous"], old_version.as_str(), "{status}");
     }
-    // The human summary names both.
+    // mbio find sees both, on the new version.
     let output = mbio(&["find", "--json", "--wait", "5"]);
     assert_exit(&output, 0);
     let found: Value = serde_json::from_str(&stdout(&output)).unwrap();
