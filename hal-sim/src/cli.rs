@@ -18,7 +18,7 @@ pub const MAX_BUSY_POLL_US: u64 = 1_000;
 /// The first lines of the usage text; the settings follow, from the table.
 const USAGE_HEAD: &str = "\
 usage: hal-sim --tap NAME [--control PATH] [--robot demo|idle] [--state FILE] [--http-port N]
-               [--busy-poll US] [SETTING VALUE]...
+               [--mac MAC] [--busy-poll US] [SETTING VALUE]...
 
   --tap NAME            the TAP interface to run on (made beforehand with
                         `ip tuntap add dev NAME mode tap user $USER`, or by hal-sim as root)
@@ -27,6 +27,9 @@ usage: hal-sim --tap NAME [--control PATH] [--robot demo|idle] [--state FILE] [-
   --state FILE          the settings flash, kept in FILE (64 KiB; made when missing); without it,
                         settings saved through the HTTP API last until hal-sim exits
   --http-port N         the HTTP API's port, 1-65535, or 0 for none (default 80)
+  --mac MAC             the device's MAC, six hex bytes such as 02:4d:42:53:49:4d (unicast; the
+                        default), so that several hal-sims share a network; the default name
+                        (mbio- and its last 3 bytes) follows it
   --busy-poll US        when idle, poll the TAP without sleeping for up to US microseconds
                         (0-1000) before each sleep: lower latency for a busy client, for a CPU
                         kept busy meanwhile (default 0: off)
@@ -72,6 +75,8 @@ pub struct Options {
     pub robot: Mode,
     /// The settings flash's file (`None`: in memory).
     pub state: Option<PathBuf>,
+    /// The device's MAC.
+    pub mac: [u8; 6],
     /// The HTTP API's port (`None`: no HTTP).
     pub http_port: Option<u16>,
     /// How long the loop polls without blocking before it sleeps, in
@@ -114,6 +119,7 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
     let mut state = None;
     let mut http_port = None;
     let mut busy_poll = None;
+    let mut mac = None;
     let mut settings = factory_defaults();
     let mut given: Vec<Field> = Vec::new();
 
@@ -135,6 +141,7 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
             "--state" => Target::Own(&mut state),
             "--http-port" => Target::Own(&mut http_port),
             "--busy-poll" => Target::Own(&mut busy_poll),
+            "--mac" => Target::Own(&mut mac),
             _ => match flag.strip_prefix("--").and_then(|name| Field::ALL.iter().find(|f| f.flag() == name)) {
                 Some(&field) => Target::Setting(field),
                 None if flag.starts_with('-') => return error(format!("unknown option `{flag}`")),
@@ -194,16 +201,40 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
             ));
         }
     };
+    let mac = match mac.as_deref() {
+        None => crate::MAC,
+        Some(text) => parse_mac(text).ok_or_else(|| {
+            UsageError(format!("`--mac` must be six hex bytes such as 02:4d:42:53:49:4d, unicast, not `{text}`"))
+        })?,
+    };
+    if !given.contains(&Field::DeviceName) {
+        settings.device.name = Name::from_mac(mac);
+    }
     let options = Options {
         tap,
         control: control.map(PathBuf::from),
         robot,
         state: state.map(PathBuf::from),
+        mac,
         http_port,
         busy_poll_us,
         settings,
     };
     Ok(Action::Run(Box::new(options)))
+}
+
+/// `aa:bb:cc:dd:ee:ff`, a unicast MAC (the first byte's lowest bit clear).
+fn parse_mac(text: &str) -> Option<[u8; 6]> {
+    let mut mac = [0u8; 6];
+    let mut parts = text.split(':');
+    for byte in &mut mac {
+        let part = parts.next()?;
+        if part.len() != 2 {
+            return None;
+        }
+        *byte = u8::from_str_radix(part, 16).ok()?;
+    }
+    (parts.next().is_none() && mac[0] & 1 == 0).then_some(mac)
 }
 
 /// Where a flag's value goes: one of hal-sim's own options, or a setting.
@@ -270,6 +301,26 @@ mod tests {
         fails(&["--tap", "t", "--busy-poll", "-5"], "not `-5`");
         fails(&["--tap", "t", "--busy-poll", "1", "--busy-poll", "2"], "given twice");
         assert!(usage().contains("--busy-poll US"));
+    }
+
+    #[test]
+    fn a_mac_of_its_own_names_the_device_after_it() {
+        let o = run(&["--tap", "t", "--mac", "02:00:00:0a:0b:0c"]).unwrap();
+        assert_eq!(o.mac, [2, 0, 0, 0x0a, 0x0b, 0x0c]);
+        assert_eq!(o.settings.device.name.as_str(), "mbio-0a0b0c");
+        let named = run(&["--tap", "t", "--mac", "02:00:00:0a:0b:0c", "--name", "cell-1"]).unwrap();
+        assert_eq!(named.settings.device.name.as_str(), "cell-1", "a name given wins");
+        assert_eq!(run(&["--tap", "t"]).unwrap().mac, crate::MAC);
+        for bad in [
+            "01:00:00:00:00:01",
+            "02:00:00:00:00",
+            "02:00:00:00:00:00:00",
+            "02-00-00-00-00-01",
+            "2:0:0:0:0:1",
+            "zz:00:00:00:00:01",
+        ] {
+            fails(&["--tap", "t", "--mac", bad], "`--mac` must be six hex bytes");
+        }
     }
 
     #[test]

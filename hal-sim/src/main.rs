@@ -41,7 +41,7 @@ adapter::program! {
 const EXIT_USAGE: u8 = 2;
 /// Exit status when the TAP or the control socket cannot be opened.
 const EXIT_UNAVAILABLE: u8 = 1;
-/// The simulated device's MAC: locally administered, unicast.
+/// The simulated device's MAC unless `--mac` gives another: locally administered, unicast.
 pub(crate) const MAC: [u8; 6] = [0x02, 0x4d, 0x42, 0x53, 0x49, 0x4d];
 /// The board, as Read Device Identification (ModelName), `/api/status` and mDNS's TXT name it.
 pub(crate) const MODEL: &str = "hal-sim";
@@ -87,7 +87,7 @@ fn main() -> ExitCode {
             return ExitCode::from(EXIT_UNAVAILABLE);
         }
     };
-    device.set_hardware_address(MAC);
+    device.set_hardware_address(options.mac);
 
     let control = match options.control.as_deref().map(control::bind).transpose() {
         Ok(control) => control,
@@ -123,17 +123,18 @@ fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>, fl
     // Saves from now on run in the executor and take the flash's time.
     store.flash().start_timing();
     let settings = running_settings(&loaded.settings, &options);
-    let (stack, runner, settings) = program::network(device, settings, MAC, RandomState::new().build_hasher().finish());
+    let (stack, runner, settings) =
+        program::network(device, settings, options.mac, RandomState::new().build_hasher().finish());
     let outputs: &'static OutputLatch = Box::leak(Box::new(OutputLatch::new()));
     let program = program::build(Board {
         stack,
         settings,
-        mac: MAC,
+        mac: options.mac,
         model: MODEL,
         outputs,
         store,
         loaded,
-        platform: SimPlatform::new(stack, settings.network.mode),
+        platform: SimPlatform::new(stack, settings.network.mode, options.mac),
         http_port: options.http_port,
     });
     let board: &'static SimBoard =

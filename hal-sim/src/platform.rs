@@ -34,6 +34,7 @@ pub struct SimPlatform {
     stack: Stack<'static>,
     /// The network mode the device started with.
     mode: NetMode,
+    mac: [u8; 6],
     /// Until when the (simulated) status LED blinks.
     locate_until: Cell<Option<Instant>>,
 }
@@ -45,8 +46,8 @@ impl std::fmt::Debug for SimPlatform {
 }
 
 impl SimPlatform {
-    pub fn new(stack: Stack<'static>, mode: NetMode) -> Self {
-        Self { stack, mode, locate_until: Cell::new(None) }
+    pub fn new(stack: Stack<'static>, mode: NetMode, mac: [u8; 6]) -> Self {
+        Self { stack, mode, mac, locate_until: Cell::new(None) }
     }
 
     /// Whether the status LED blinks now (`POST /api/locate`, for 10 s).
@@ -61,7 +62,7 @@ impl Platform for SimPlatform {
     }
 
     fn mac(&self) -> [u8; 6] {
-        crate::MAC
+        self.mac
     }
 
     fn network(&self) -> NetworkStatus {

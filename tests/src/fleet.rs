@@ -2,9 +2,8 @@
 //! TAP, the TAPs on one bridge with the host side's address, so one client
 //! (`mbio`) sees them all as a plant network does: by mDNS and by address.
 //!
-//! Every hal-sim has the same MAC (hal-sim's is fixed), so the bridge runs
-//! as a hub: its ports learn no address and flood every frame to every
-//! port; each device takes only what is sent to its own IPv4 address.
+//! Each hal-sim has a MAC of its own (`--mac`), as boards on one network
+//! have, and the bridge switches frames between them as a plant's does.
 //!
 //! ```no_run
 //! use system_tests::fleet::Fleet;
@@ -46,12 +45,11 @@ pub fn mbio_binary() -> PathBuf {
     path
 }
 
-/// Makes `ns` a plant network: its TAP's address moves to a bridge in hub
-/// mode, with `taps` TAPs (`tap0`, `tap1`, ...) as its ports. The TAP names.
+/// Makes `ns` a plant network: its TAP's address moves to a bridge with
+/// `taps` TAPs (`tap0`, `tap1`, ...) as its ports. The TAP names.
 pub fn bridge(ns: &Namespace, taps: usize) -> Vec<String> {
     ns.ip(&["addr", "flush", "dev", TAP]).unwrap();
-    ns.ip(&["link", "add", BRIDGE, "type", "bridge", "ageing_time", "0", "mcast_snooping", "0", "stp_state", "0"])
-        .unwrap();
+    ns.ip(&["link", "add", BRIDGE, "type", "bridge", "mcast_snooping", "0", "stp_state", "0"]).unwrap();
     ns.ip(&["addr", "add", HOST_CIDR, "dev", BRIDGE]).unwrap();
     ns.ip(&["link", "set", BRIDGE, "up"]).unwrap();
     let names: Vec<String> = (0..taps).map(|i| format!("tap{i}")).collect();
@@ -60,21 +58,6 @@ pub fn bridge(ns: &Namespace, taps: usize) -> Vec<String> {
             ns.ip(&["tuntap", "add", "dev", tap, "mode", "tap"]).unwrap();
         }
         ns.ip(&["link", "set", tap, "master", BRIDGE]).unwrap();
-        ns.ip(&[
-            "link",
-            "set",
-            "dev",
-            tap,
-            "type",
-            "bridge_slave",
-            "learning",
-            "off",
-            "flood",
-            "on",
-            "mcast_flood",
-            "on",
-        ])
-        .unwrap();
         ns.ip(&["link", "set", tap, "up"]).unwrap();
     }
     names
@@ -83,6 +66,11 @@ pub fn bridge(ns: &Namespace, taps: usize) -> Vec<String> {
 /// The address of the fleet's member `i`: 198.18.0.11, .12, ...
 pub fn member_ip(i: usize) -> Ipv4Addr {
     Ipv4Addr::new(198, 18, 0, 11 + u8::try_from(i).unwrap())
+}
+
+/// The MAC of the fleet's member `i`: 02:4d:42:00:00:0b, ...0c, ... (as its address).
+pub fn member_mac(i: usize) -> String {
+    format!("02:4d:42:00:00:{:02x}", 11 + u8::try_from(i).unwrap())
 }
 
 /// One hal-sim of the fleet.
@@ -147,7 +135,7 @@ impl Fleet {
             let log = dir.join(format!("{}.{tap}.hal-sim.log", ns.name()));
             let mut child = ns
                 .command(crate::hal_sim::binary())
-                .args(["--tap", tap, "--ip", &format!("{ip}/24"), "--name", name, "--control"])
+                .args(["--tap", tap, "--mac", &member_mac(i), "--ip", &format!("{ip}/24"), "--name", name, "--control"])
                 .arg(&control)
                 .args(args)
                 .env("RUST_LOG", std::env::var("RUST_LOG").unwrap_or_else(|_| "info".into()))

@@ -35,6 +35,16 @@
 //! guest memory through it). [`Qemu::log`] decodes the log with `defmt-print`.
 
 use std::fmt::Write as _;
+
+/// The `,mac=` of a QEMU on TAP `tap`: none (QEMU's 52:54:00:12:34:56) on
+/// the namespace's own TAP, and one of its own on each TAP of a bridge
+/// (`tap1`, `tap2`, ...), as boards on one network have.
+fn tap_mac(tap: &str) -> String {
+    match tap.strip_prefix("tap").and_then(|n| n.parse::<u8>().ok()) {
+        Some(0) | None => String::new(),
+        Some(n) => format!(",mac=52:54:00:12:35:{n:02x}"),
+    }
+}
 use std::io::{BufRead as _, Read as _, Write as _};
 use std::net::{Ipv4Addr, SocketAddr, TcpListener};
 use std::os::unix::net::UnixStream;
@@ -515,7 +525,7 @@ impl Qemu {
                 "user,model=lan9118,restrict=on,hostfwd=tcp:127.0.0.1:{port}-:{MODBUS_PORT},\
                  hostfwd=tcp:127.0.0.1:{http_port}-:{HTTP_PORT}"
             ),
-            Network::Tap(_, tap) => format!("tap,ifname={tap},script=no,downscript=no,model=lan9118"),
+            Network::Tap(_, tap) => format!("tap,ifname={tap},script=no,downscript=no,model=lan9118{}", tap_mac(tap)),
         };
         let mut command = match network {
             Network::Slirp { .. } => Command::new("timeout"),
