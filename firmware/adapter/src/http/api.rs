@@ -43,6 +43,7 @@ const FIRST_PASSWORD_CLOSED: &str = "the first password may be set only within 1
 pub(super) enum Endpoint {
     Page,
     Status,
+    Telemetry,
     GetSettings,
     PutSettings,
     PutPassword,
@@ -69,6 +70,8 @@ pub(super) fn route(method: &str, path: &str) -> Result<Endpoint, Miss> {
         ("/", _) => ("GET", None),
         ("/api/status", "GET") => ("", Some(Endpoint::Status)),
         ("/api/status", _) => ("GET", None),
+        ("/api/telemetry", "GET") => ("", Some(Endpoint::Telemetry)),
+        ("/api/telemetry", _) => ("GET", None),
         ("/api/settings", "GET") => ("", Some(Endpoint::GetSettings)),
         ("/api/settings", "PUT") => ("", Some(Endpoint::PutSettings)),
         ("/api/settings", _) => ("GET, PUT", None),
@@ -258,6 +261,11 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
                 self.status(out);
                 return Reply::new(Status::OK);
             }
+            Endpoint::Telemetry => {
+                let values = self.control().server().service().read(telemetry);
+                telemetry_document(out, &values);
+                return Reply::new(Status::OK);
+            }
             Endpoint::GetSettings => {
                 settings_document(out, &self.control().settings(), self.control().password_set(), None);
                 return Reply::new(Status::OK);
@@ -294,7 +302,7 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
                 Reply::new(Status::OK)
             }
             // Answered above.
-            Endpoint::Page | Endpoint::Status | Endpoint::GetSettings => Reply::new(Status::INTERNAL_SERVER_ERROR),
+            Endpoint::Page | Endpoint::Status | Endpoint::Telemetry | Endpoint::GetSettings => Reply::new(Status::INTERNAL_SERVER_ERROR),
             // Streamed before `respond` (`take`).
             #[cfg(feature = "update")]
             Endpoint::Firmware => Reply::new(Status::INTERNAL_SERVER_ERROR),
@@ -635,6 +643,83 @@ impl Io {
         out.text(",\"power_button\":");
         out.boolean(power_button != 0);
     }
+}
+
+/// How a telemetry register reads in its unit (docs/data-map.md).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Scale {
+    /// Unsigned, as it is (mA, °C).
+    Whole,
+    /// Two's complement, as it is (N, N·m).
+    Signed,
+    /// Two's complement, in tenths (0.1 mm, 0.1 degree, and per second).
+    Tenths,
+}
+
+/// The robot's telemetry (registers 270-435) in `GET /api/telemetry`: each
+/// group's key (its unit in the name), first register, registers and scale.
+pub(super) const TELEMETRY: [(&str, u16, usize, Scale); 13] = [
+    ("joint_position_deg", reg::JOINT_POSITION, 6, Scale::Tenths),
+    ("joint_velocity_deg_s", reg::JOINT_VELOCITY, 6, Scale::Tenths),
+    ("joint_current_ma", reg::JOINT_CURRENT, 6, Scale::Whole),
+    ("joint_temperature_c", reg::JOINT_TEMPERATURE, 6, Scale::Whole),
+    ("joint_torque_nm", reg::JOINT_TORQUE, 6, Scale::Signed),
+    ("task_position_mm", reg::TASK_POSITION, 3, Scale::Tenths),
+    ("task_orientation_deg", reg::TASK_ORIENTATION, 3, Scale::Tenths),
+    ("task_velocity_mm_s", reg::TASK_VELOCITY, 3, Scale::Tenths),
+    ("task_angular_velocity_deg_s", reg::TASK_ANGULAR_VELOCITY, 3, Scale::Tenths),
+    ("tool_offset_mm", reg::TOOL_OFFSET_LENGTH, 3, Scale::Tenths),
+    ("tool_offset_deg", reg::TOOL_OFFSET_DEGREE, 3, Scale::Tenths),
+    ("external_force_n", reg::EXTERNAL_FORCE, 3, Scale::Signed),
+    ("external_moment_nm", reg::EXTERNAL_MOMENT, 3, Scale::Signed),
+];
+
+/// The registers [`TELEMETRY`] names, in its order.
+const TELEMETRY_LEN: usize = 5 * 6 + 8 * 3;
+
+const _: () = {
+    let mut total = 0;
+    let mut i = 0;
+    while i < TELEMETRY.len() {
+        total += TELEMETRY[i].2;
+        i += 1;
+    }
+    assert!(total == TELEMETRY_LEN);
+};
+
+/// [`TELEMETRY`]'s registers, read from the image at once (under the one
+/// lock of [`crate::device::Device::read`]: one 100 ms sample, not two).
+fn telemetry(image: &Image) -> [u16; TELEMETRY_LEN] {
+    let mut values = [0; TELEMETRY_LEN];
+    let mut slots = values.iter_mut();
+    for &(_, first, count, _) in &TELEMETRY {
+        for (offset, slot) in (0..count as u16).zip(slots.by_ref()) {
+            *slot = image.register(first + offset);
+        }
+    }
+    values
+}
+
+/// `GET /api/telemetry`: `{"joint_position_deg": [...], ...}`, each value
+/// in the unit its key names.
+pub(super) fn telemetry_document(out: &mut Out<'_>, values: &[u16; TELEMETRY_LEN]) {
+    let mut values = values.iter();
+    for (i, &(key, _, count, scale)) in TELEMETRY.iter().enumerate() {
+        out.text(if i == 0 { "{\"" } else { "],\"" });
+        out.text(key);
+        out.text("\":[");
+        for (j, &raw) in values.by_ref().take(count).enumerate() {
+            if j > 0 {
+                out.text(",");
+            }
+            match scale {
+                Scale::Whole => out.number(raw),
+                Scale::Signed => out.signed(i32::from(raw as i16), false),
+                Scale::Tenths => out.signed(i32::from(raw as i16), true),
+            }
+        }
+    }
+    out.text("]}");
 }
 
 /// Register 259's value by name (docs/data-map.md, *Robot state*).

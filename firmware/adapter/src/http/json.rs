@@ -437,6 +437,22 @@ impl<'b> Out<'b> {
         self.text(text::decimal(value, &mut [0; text::MAX_DIGITS]));
     }
 
+    /// Appends a signed number, in tenths when `tenths` (`-12.5` for -125,
+    /// `0.0` for 0).
+    pub fn signed(&mut self, value: i32, tenths: bool) {
+        if value < 0 {
+            self.text("-");
+        }
+        let magnitude = value.unsigned_abs();
+        if tenths {
+            self.number(magnitude / 10);
+            self.text(".");
+            self.number(magnitude % 10);
+        } else {
+            self.number(magnitude);
+        }
+    }
+
     /// Appends a JSON string of `bytes` (UTF-8), quoted and escaped.
     pub fn string_of(&mut self, bytes: impl Iterator<Item = u8>) {
         self.raw(b"\"");
@@ -658,5 +674,30 @@ mod tests {
         assert_eq!(out.as_bytes(), b"12345}}");
         out.clear();
         assert_eq!(out.as_bytes(), b"");
+    }
+
+    #[test]
+    fn signed_numbers_and_tenths_read_back_as_their_values() {
+        let cases: [(i32, bool, &str); 10] = [
+            (0, false, "0"),
+            (7, false, "7"),
+            (-7, false, "-7"),
+            (i32::from(i16::MIN), false, "-32768"),
+            (i32::from(i16::MAX), false, "32767"),
+            (0, true, "0.0"),
+            (5, true, "0.5"),
+            (-5, true, "-0.5"),
+            (-125, true, "-12.5"),
+            (i32::from(i16::MIN), true, "-3276.8"),
+        ];
+        for (value, tenths, text) in cases {
+            let mut buf = [0u8; 16];
+            let mut out = Out::new(&mut buf);
+            out.signed(value, tenths);
+            assert_eq!(core::str::from_utf8(out.as_bytes()), Ok(text), "{value} {tenths}");
+            let read: f64 = serde_json::from_slice(out.as_bytes()).unwrap();
+            let expected = if tenths { f64::from(value) / 10.0 } else { f64::from(value) };
+            assert!((read - expected).abs() < 1e-9, "{text} reads as {read}");
+        }
     }
 }

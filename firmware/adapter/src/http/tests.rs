@@ -78,6 +78,60 @@ fn the_status_document_shows_the_device() {
     assert_eq!(status["admin"], json!({"password_set": true, "first_password_open": false}));
 }
 
+/// The robot's telemetry in the map's units, every group, read at once.
+#[test]
+fn the_telemetry_document_has_every_point_in_its_unit() {
+    let clock = Clock::take();
+    let http = api();
+    let response = get(http, &clock, "/api/telemetry");
+    assert_eq!(response.status, 200);
+    assert_eq!(response.header("content-type"), Some("application/json"));
+    assert_eq!(response.header("cache-control"), Some("no-store"));
+    let zeros = response.json();
+    assert_eq!(zeros["joint_position_deg"], json!([0.0, 0.0, 0.0, 0.0, 0.0, 0.0]), "no robot: zeros");
+
+    let telemetry = crate::io::Telemetry {
+        joint_position: [123, -456, 0, 1800, -1800, 5],
+        joint_velocity: [-1, 2, -3, 4, -5, 6],
+        joint_current: [1000, 2000, 3000, 4000, 5000, 65535],
+        joint_temperature: [25, 26, 27, 28, 29, 30],
+        joint_torque: [-100, 99, 0, 1, -1, 32767],
+        task_pose: [6000, -2000, 4500, 900, -1800, 0],
+        task_velocity: [15, -15, 0, 1, -1, 0],
+        tool_offset: [0, 0, 1200, 0, 0, 0],
+        external_wrench: [10, -20, 30, -4, 5, -32768],
+    };
+    http.control().server().service().update(|image| image.set_telemetry(&telemetry));
+    let document = get(http, &clock, "/api/telemetry").json();
+    let expected = json!({
+        "joint_position_deg": [12.3, -45.6, 0.0, 180.0, -180.0, 0.5],
+        "joint_velocity_deg_s": [-0.1, 0.2, -0.3, 0.4, -0.5, 0.6],
+        "joint_current_ma": [1000, 2000, 3000, 4000, 5000, 65535],
+        "joint_temperature_c": [25, 26, 27, 28, 29, 30],
+        "joint_torque_nm": [-100, 99, 0, 1, -1, 32767],
+        "task_position_mm": [600.0, -200.0, 450.0],
+        "task_orientation_deg": [90.0, -180.0, 0.0],
+        "task_velocity_mm_s": [1.5, -1.5, 0.0],
+        "task_angular_velocity_deg_s": [0.1, -0.1, 0.0],
+        "tool_offset_mm": [0.0, 0.0, 120.0],
+        "tool_offset_deg": [0.0, 0.0, 0.0],
+        "external_force_n": [10, -20, 30],
+        "external_moment_nm": [-4, 5, -32768],
+    });
+    assert_eq!(document, expected);
+    // Every group is the registers docs/data-map.md gives it, in order.
+    let keys: Vec<&str> = document.as_object().unwrap().keys().map(String::as_str).collect();
+    let mut listed: Vec<&str> = api::TELEMETRY.iter().map(|&(key, ..)| key).collect();
+    listed.sort_unstable();
+    assert_eq!(keys, listed);
+    for &(key, first, count, _) in &api::TELEMETRY {
+        assert_eq!(document[key].as_array().unwrap().len(), count, "{key}");
+        assert!(crate::map::table::register_row(first + count as u16 - 1).is_some(), "{key} ends inside the map");
+    }
+    let response = send(http, &clock, "PUT", "/api/telemetry", &owner(), "{}");
+    assert_eq!((response.status, response.header("allow")), (405, Some("GET")));
+}
+
 #[test]
 fn the_page_is_served_gzipped_from_flash_to_a_client_that_takes_gzip() {
     let clock = Clock::take();
@@ -710,6 +764,20 @@ fn the_largest_documents_fit_the_response_buffer() {
     assert_eq!(status.status, 200);
     assert_eq!(status.json()["connections"].as_array().unwrap().len(), crate::server::SOCKET_POOL);
     assert!(status.body.len() <= MAX_RESPONSE_LEN - 64, "{} bytes: keep a margin", status.body.len());
+    // The telemetry at its widest: every value -3276.8 or -32768 or 65535.
+    control.server().service().update(|image| {
+        for address in 270..=crate::map::table::reg::LAST {
+            image.set_register(address, 0x8000);
+        }
+        for address in (290..296).chain(300..306) {
+            image.set_register(address, u16::MAX);
+        }
+    });
+    let telemetry = get(http, &clock, "/api/telemetry");
+    assert_eq!(telemetry.status, 200);
+    assert_eq!(telemetry.json()["joint_current_ma"][0], 65535);
+    assert_eq!(telemetry.json()["joint_position_deg"][0], -3276.8);
+    assert!(telemetry.body.len() <= MAX_RESPONSE_LEN - 64, "{} bytes: keep a margin", telemetry.body.len());
     let document = get(http, &clock, "/api/settings");
     assert_eq!(document.status, 200);
     assert!(document.body.len() <= MAX_BODY_LEN, "the settings document can be sent back: {}", document.body.len());
