@@ -40,11 +40,12 @@ pub fn require_browser() {
         Path::new(CHROMIUM).is_file(),
         "this test needs {CHROMIUM} (apt-get install chromium; scripts/setup does it)"
     );
-    let playwright = browser_dir().join("node_modules/playwright-core/package.json");
-    assert!(
-        playwright.is_file(),
-        "this test needs playwright-core in tests/browser/node_modules: run `npm ci` in tests/browser (scripts/setup does it)"
-    );
+    for package in ["playwright-core", "axe-core"] {
+        assert!(
+            browser_dir().join("node_modules").join(package).join("package.json").is_file(),
+            "this test needs {package} in tests/browser/node_modules: run `npm ci` in tests/browser (scripts/setup does it)"
+        );
+    }
 }
 
 /// Runs `command` to its end or kills it after `limit`: status, stdout, stderr.

@@ -2,10 +2,13 @@
 //! driven by playwright-core (tests/browser/page.js), inside hal-sim's
 //! network namespace. The script checks each step in the browser and
 //! prints what it measured; this test checks that again, and the device
-//! behind it through the API, the control socket and curl. It keeps
-//! screenshots in target/artifacts/ (page.png, page-error.png with a
-//! refused setting, page-narrow.png at a phone's width, and
-//! page-failure.png when a step fails).
+//! behind it through the API, the control socket and curl: the I/O, the
+//! robot's telemetry live in its units, the typed settings (a mask's
+//! boxes, an allow-list), focus kept across the refresh, and an
+//! accessibility audit (axe-core) with no serious or critical violation.
+//! It keeps screenshots in target/artifacts/ (page.png, page-error.png with
+//! a refused setting, page-narrow.png at a phone's width, and
+//! page-failure.png when a step fails) and the audit's findings (axe.json).
 //!
 //! Needs root (a namespace), node, chromium and `npm ci` in tests/browser
 //! (scripts/setup installs them); fails loudly without any of them.
@@ -34,6 +37,9 @@ fn ok(reply: Reply) -> Value {
 fn the_page_shows_the_device_live_and_changes_it_through_the_api() {
     require_browser();
     let sim = HalSim::start(&["--robot", "idle"]);
+    // The telemetry the page reads.
+    let telemetry = ok(sim.get("/api/telemetry"));
+    assert_eq!(telemetry["tool_offset_mm"], serde_json::json!([0.0, 0.0, 120.0]), "hal-sim's 120 mm tool");
 
     // curl sees what a browser gets, and a client without gzip is told why not.
     let head = sim.http("/", &["-H", "Accept-Encoding: gzip", "-D", "-", "-o", "/dev/null"]);
@@ -78,7 +84,7 @@ fn the_page_shows_the_device_live_and_changes_it_through_the_api() {
     let before = ok(sim.get("/api/settings"));
     assert_eq!(sim.control_ok("get locate"), "0");
 
-    let artifacts = fresh_artifacts(&["page.png", "page-error.png", "page-narrow.png", "page-failure.png"]);
+    let artifacts = fresh_artifacts(&["page.png", "page-error.png", "page-narrow.png", "page-failure.png", "axe.json"]);
     let mut node = sim.ns().command("node");
     node.current_dir(browser_dir())
         .arg("page.js")
@@ -103,14 +109,32 @@ fn the_page_shows_the_device_live_and_changes_it_through_the_api() {
     assert_eq!(summary["field_error"], "any, or 1-247", "the error beside modbus.unit_id");
     assert!(summary["refused"].as_str().is_some_and(|m| m.starts_with("401")), "{summary}");
     assert_eq!(summary["page_errors"], serde_json::json!([]));
+    assert_eq!(summary["telemetry_cells"], 54, "every telemetry point has a cell: {summary}");
+    assert!(summary["telemetry_moved"].as_u64().is_some_and(|n| n > 0), "the telemetry changes live: {summary}");
+    assert_eq!(summary["focus_kept"], "modbus-port", "focus stays across the refresh");
+    assert!(summary["list_error"].as_str().is_some_and(|m| m.contains("networks")), "{summary}");
+    // The audit, read again from what the script wrote: no serious or critical violation.
+    let audits: Value =
+        serde_json::from_slice(&std::fs::read(artifacts.join("axe.json")).expect("axe.json")).expect("the audits");
+    assert_eq!(audits.as_object().map(|a| a.len()), Some(2), "two audits: {audits}");
+    for (name, audit) in audits.as_object().into_iter().flatten() {
+        assert!(audit["passes"].as_u64().is_some_and(|n| n > 10), "{name}: axe ran its rules: {audit}");
+        let violations = audit["violations"].as_array().expect("violations");
+        let severe: Vec<&Value> =
+            violations.iter().filter(|v| v["impact"] == "serious" || v["impact"] == "critical").collect();
+        assert!(severe.is_empty(), "{name}: {severe:?}");
+    }
 
     // The device behind the page: only the good change applied, the
     // password set, and locate on.
     let after = ok(sim.get("/api/settings"));
     let mut expected = before.clone();
     expected["modbus"]["unit_id"] = "7".into();
+    expected["modbus"]["allow_connect"] = "198.18.0.0/15".into();
+    expected["watchdog"]["safe_do"] = (1 << 2 | 1 << 15).into();
+    expected["watchdog"]["safe_tool_do"] = 2.into();
     expected["admin"]["password_set"] = true.into();
-    assert_eq!(after, expected, "the page changed unit_id and the password, nothing else");
+    assert_eq!(after, expected, "the page changed unit_id, the masks, allow_connect and the password, nothing else");
     assert_eq!(sim.control_ok("get locate"), "1", "the locate button set hal-sim's flag");
     drop(master);
 
