@@ -42,22 +42,22 @@ function check(ok, what) {
 // first and reads them in a second step, by when a poll may have detached
 // them (a dt with no sibling).
 async function firmware(page) {
-  return page.evaluate(() => Object.fromEntries([...document.querySelectorAll('#fw dt')]
+  return page.evaluate(() => Object.fromEntries([...document.querySelectorAll('#firmware dt')]
     .map((dt) => [dt.textContent, dt.nextElementSibling.textContent])));
 }
 
 // Uploads `file` through the page; samples the progress bar until the
 // page has the device's answer. The answer and the bar's values seen.
 async function upload(page, file) {
-  await page.setInputFiles('#ff', file);
-  await page.click('#fb');
+  await page.setInputFiles('#update-file', file);
+  await page.click('#update-start');
   const seen = [];
   const deadline = Date.now() + 120000;
   for (;;) {
     const [value, message, busy] = await page.evaluate(() => [
-      document.getElementById('fp').value,
-      document.getElementById('fmsg').textContent,
-      document.getElementById('fb').disabled,
+      document.getElementById('update-progress').value,
+      document.getElementById('update-message').textContent,
+      document.getElementById('update-start').disabled,
     ]);
     if (seen[seen.length - 1] !== value) seen.push(value);
     if (!busy) return { message, seen };
@@ -82,14 +82,14 @@ async function main() {
       offline: false, latency: 0, downloadThroughput: -1, uploadThroughput: UPLOAD_RATE,
     });
     await page.goto(url);
-    await page.waitForSelector('#warn:not([hidden])', { timeout: 15000 });
-    check(!(await page.isVisible('#ff')), 'no upload before the first password');
-    await page.fill('#np', PASSWORD);
+    await page.waitForSelector('#first-password:not([hidden])', { timeout: 15000 });
+    check(!(await page.isVisible('#update-file')), 'no upload before the first password');
+    await page.fill('#new-password', PASSWORD);
     await page.click('text=Set password');
-    await page.waitForSelector('#warn', { state: 'hidden', timeout: 5000 });
-    await page.waitForSelector('#upd:not([hidden])', { timeout: 15000 });
-    await page.waitForSelector('#ff', { state: 'visible', timeout: 5000 });
-    await page.waitForFunction(() => document.querySelectorAll('#fw dt').length > 0);
+    await page.waitForSelector('#first-password', { state: 'hidden', timeout: 5000 });
+    await page.waitForSelector('#update:not([hidden])', { timeout: 15000 });
+    await page.waitForSelector('#update-file', { state: 'visible', timeout: 5000 });
+    await page.waitForFunction(() => document.querySelectorAll('#firmware dt').length > 0);
     summary.before = await firmware(page);
     check(summary.before.Running.startsWith(oldVersion), `running before: ${JSON.stringify(summary.before)}`);
 
@@ -115,7 +115,7 @@ async function main() {
 
     // The device restarts into the new version; the page follows it.
     await page.waitForFunction((v) => {
-      const dd = [...document.querySelectorAll('#fw dt')].find((dt) => dt.textContent == 'Running');
+      const dd = [...document.querySelectorAll('#firmware dt')].find((dt) => dt.textContent == 'Running');
       return dd && dd.nextElementSibling.textContent.startsWith(v);
     }, newVersion, { timeout: RESTART_MS, polling: 250 });
     await page.waitForFunction(() => document.getElementById('live').className == 'ok');

@@ -130,7 +130,7 @@ fn the_page_shows_the_device_live_and_changes_it_through_the_api() {
     let after = ok(sim.get("/api/settings"));
     let mut expected = before.clone();
     expected["modbus"]["unit_id"] = "7".into();
-    expected["modbus"]["allow_connect"] = "198.18.0.0/15".into();
+    expected["modbus"]["allow_connect"] = "198.18.0.0/15,10.0.0.9/32".into();
     expected["watchdog"]["safe_do"] = (1 << 2 | 1 << 15).into();
     expected["watchdog"]["safe_tool_do"] = 2.into();
     expected["admin"]["password_set"] = true.into();

@@ -658,7 +658,7 @@ pub(super) enum Scale {
 
 /// The robot's telemetry (registers 270-435) in `GET /api/telemetry`: each
 /// group's key (its unit in the name), first register, registers and scale.
-pub(super) const TELEMETRY: [(&str, u16, usize, Scale); 13] = [
+pub(super) const TELEMETRY: [(&str, u16, u8, Scale); 13] = [
     ("joint_position_deg", reg::JOINT_POSITION, 6, Scale::Tenths),
     ("joint_velocity_deg_s", reg::JOINT_VELOCITY, 6, Scale::Tenths),
     ("joint_current_ma", reg::JOINT_CURRENT, 6, Scale::Whole),
@@ -681,7 +681,7 @@ const _: () = {
     let mut total = 0;
     let mut i = 0;
     while i < TELEMETRY.len() {
-        total += TELEMETRY[i].2;
+        total += TELEMETRY[i].2 as usize;
         i += 1;
     }
     assert!(total == TELEMETRY_LEN);
@@ -693,7 +693,7 @@ fn telemetry(image: &Image) -> [u16; TELEMETRY_LEN] {
     let mut values = [0; TELEMETRY_LEN];
     let mut slots = values.iter_mut();
     for &(_, first, count, _) in &TELEMETRY {
-        for (offset, slot) in (0..count as u16).zip(slots.by_ref()) {
+        for (offset, slot) in (0..u16::from(count)).zip(slots.by_ref()) {
             *slot = image.register(first + offset);
         }
     }
@@ -708,7 +708,7 @@ pub(super) fn telemetry_document(out: &mut Out<'_>, values: &[u16; TELEMETRY_LEN
         out.text(if i == 0 { "{\"" } else { "],\"" });
         out.text(key);
         out.text("\":[");
-        for (j, &raw) in values.by_ref().take(count).enumerate() {
+        for (j, &raw) in values.by_ref().take(usize::from(count)).enumerate() {
             if j > 0 {
                 out.text(",");
             }

@@ -125,8 +125,8 @@ fn the_telemetry_document_has_every_point_in_its_unit() {
     listed.sort_unstable();
     assert_eq!(keys, listed);
     for &(key, first, count, _) in &api::TELEMETRY {
-        assert_eq!(document[key].as_array().unwrap().len(), count, "{key}");
-        assert!(crate::map::table::register_row(first + count as u16 - 1).is_some(), "{key} ends inside the map");
+        assert_eq!(document[key].as_array().unwrap().len(), usize::from(count), "{key}");
+        assert!(crate::map::table::register_row(first + u16::from(count) - 1).is_some(), "{key} ends inside the map");
     }
     let response = send(http, &clock, "PUT", "/api/telemetry", &owner(), "{}");
     assert_eq!((response.status, response.header("allow")), (405, Some("GET")));
