@@ -302,7 +302,9 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
                 Reply::new(Status::OK)
             }
             // Answered above.
-            Endpoint::Page | Endpoint::Status | Endpoint::Telemetry | Endpoint::GetSettings => Reply::new(Status::INTERNAL_SERVER_ERROR),
+            Endpoint::Page | Endpoint::Status | Endpoint::Telemetry | Endpoint::GetSettings => {
+                Reply::new(Status::INTERNAL_SERVER_ERROR)
+            }
             // Streamed before `respond` (`take`).
             #[cfg(feature = "update")]
             Endpoint::Firmware => Reply::new(Status::INTERNAL_SERVER_ERROR),

@@ -132,6 +132,24 @@ fn the_telemetry_document_has_every_point_in_its_unit() {
     assert_eq!((response.status, response.header("allow")), (405, Some("GET")));
 }
 
+/// The page shows every telemetry group with the unit its key ends in:
+/// its table of units knows each suffix the document uses.
+#[test]
+fn the_page_knows_the_unit_of_every_telemetry_key() {
+    let html = page::tests::decompressed(page::PAGE);
+    assert!(html.contains("'/api/telemetry'"), "the page reads the telemetry");
+    let units = html.lines().find(|line| line.starts_with("const UNITS = {")).expect("the page's units");
+    for &(key, ..) in &api::TELEMETRY {
+        let suffix = ["deg_s", "mm_s"]
+            .into_iter()
+            .find(|two| key.ends_with(&format!("_{two}")))
+            .unwrap_or_else(|| key.rsplit('_').next().unwrap());
+        let known =
+            [format!("{{{suffix}: '"), format!(" {suffix}: '")].iter().any(|entry| units.contains(entry.as_str()));
+        assert!(known, "{key}: the page has no unit for {suffix}: {units}");
+    }
+}
+
 #[test]
 fn the_page_is_served_gzipped_from_flash_to_a_client_that_takes_gzip() {
     let clock = Clock::take();
