@@ -677,16 +677,14 @@ pub(super) const TELEMETRY: [(&str, u16, u8, Scale); 13] = [
 ];
 
 /// The registers [`TELEMETRY`] names, in its order.
-const TELEMETRY_LEN: usize = 5 * 6 + 8 * 3;
-
-const _: () = {
+const TELEMETRY_LEN: usize = {
     let mut total = 0;
-    let mut i = 0;
-    while i < TELEMETRY.len() {
-        total += TELEMETRY[i].2 as usize;
-        i += 1;
+    let mut rest: &[(&str, u16, u8, Scale)] = &TELEMETRY;
+    while let [(_, _, count, _), tail @ ..] = rest {
+        total += *count as usize;
+        rest = tail;
     }
-    assert!(total == TELEMETRY_LEN);
+    total
 };
 
 /// [`TELEMETRY`]'s registers, read from the image at once (under the one
