@@ -9,9 +9,9 @@
 // status 1. At the end it prints one line of JSON: what it measured, which
 // the Rust test checks again.
 //
-// The accessibility audit is axe-core (npm), run in the page twice: on a
-// new device's page (the first password's form alone) and on the whole
-// page with a refused setting marked. axe's source goes in through
+// The accessibility audit is axe-core (npm), run in the page three
+// times: on a new device's page (the first password's form alone), on the
+// whole page with a refused setting marked, and at a phone's width. axe's source goes in through
 // playwright's page.evaluate, which the page's Content-Security-Policy does
 // not apply to (a script tag would be refused: only the page's own script,
 // by its hash, runs); the alternative, a context with bypassCSP, would turn
@@ -194,8 +194,12 @@ async function main(browser) {
   check(moving.slice(0, 6).some((v, i) => v != still[i]), `the joints move live: ${still.slice(0, 6)} then ${moving.slice(0, 6)}`);
   summary.telemetry_example = moving.slice(0, 6);
 
-  // The robot's state is announced (a live region), its flags said in words.
+  // The robot's state is announced (a live region), its flags said in
+  // words; so are the connection and every message.
   check((await page.getAttribute('#robot-state', 'aria-live')) == 'polite', 'the robot state is a live region');
+  for (const id of ['live', 'action-message', 'settings-message', 'password-message', 'update-message']) {
+    check((await page.getAttribute('#' + id, 'role')) == 'status', `#${id} is announced`);
+  }
   await sendOk('robot estop press');
   await shows(page, '#robot-state', 'EMERGENCY STOP (6)', LAMP_MS);
   await shows(page, '#robot .alarm', 'on', LAMP_MS);
@@ -314,8 +318,9 @@ async function main(browser) {
   await shows(page, '#settings-message', 'Nothing changed');
 
   await page.screenshot({ path: path.join(artifacts, 'page.png'), fullPage: true });
-  // And on a phone's width.
+  // And on a phone's width, audited again (the layout changes).
   await page.setViewportSize({ width: 400, height: 900 });
+  await audit(page, 'phone width', summary.audits);
   await page.screenshot({ path: path.join(artifacts, 'page-narrow.png'), fullPage: true });
   fs.writeFileSync(path.join(artifacts, 'axe.json'), JSON.stringify(summary.audits, null, 2));
   summary.page_errors = errors;

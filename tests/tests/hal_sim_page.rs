@@ -116,7 +116,7 @@ fn the_page_shows_the_device_live_and_changes_it_through_the_api() {
     // The audit, read again from what the script wrote: no serious or critical violation.
     let audits: Value =
         serde_json::from_slice(&std::fs::read(artifacts.join("axe.json")).expect("axe.json")).expect("the audits");
-    assert_eq!(audits.as_object().map(|a| a.len()), Some(2), "two audits: {audits}");
+    assert_eq!(audits.as_object().map(|a| a.len()), Some(3), "three audits: {audits}");
     for (name, audit) in audits.as_object().into_iter().flatten() {
         assert!(audit["passes"].as_u64().is_some_and(|n| n > 10), "{name}: axe ran its rules: {audit}");
         let violations = audit["violations"].as_array().expect("violations");
