@@ -14,6 +14,8 @@
 //!
 //! Needs clang, libclang, cmake and ninja (Mbed TLS is built from source).
 #![cfg_attr(target_os = "none", no_std, no_main)]
+// The server-only and baseline variants leave parts unused.
+#![allow(dead_code, unused_imports, unused_variables)]
 
 #[cfg(not(target_os = "none"))]
 fn main() {
@@ -23,6 +25,10 @@ fn main() {
 #[cfg(target_os = "none")]
 #[path = "../libc.rs"]
 mod libc;
+
+#[cfg(target_os = "none")]
+#[path = "../../../common/stack.rs"]
+mod stack;
 
 #[cfg(target_os = "none")]
 mod m4 {
@@ -73,10 +79,12 @@ mod m4 {
     }
 
     fn server<R>(f: impl FnOnce() -> R) -> R {
-        mark_server_enter();
-        let r = f();
-        mark_server_leave();
-        r
+        crate::stack::measured(|| {
+            mark_server_enter();
+            let r = f();
+            mark_server_leave();
+            r
+        })
     }
 
     /// A one-way byte pipe between the two sides.
@@ -221,6 +229,7 @@ mod m4 {
                     before,
                     ARENA.allocs.load(Ordering::Relaxed)
                 );
+                hprintln!("server stack high-water so far: {} B", unsafe { crate::stack::DEEPEST });
                 mark_phase();
                 server(|| unsafe { sconn.free() });
                 unsafe {
@@ -238,6 +247,7 @@ mod m4 {
                 }
             }
         }
+        hprintln!("server stack high-water: {} B", unsafe { crate::stack::DEEPEST });
         debug::exit(debug::EXIT_SUCCESS);
         loop {}
     }

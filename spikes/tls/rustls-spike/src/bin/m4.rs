@@ -16,11 +16,17 @@
 //! `server-only` links the server without the client (it is fed nothing):
 //! the image for the flash figure; `baseline` the same skeleton with no TLS.
 #![cfg_attr(target_os = "none", no_std, no_main)]
+// The server-only and baseline variants leave parts unused.
+#![allow(dead_code, unused_imports, unused_variables)]
 
 #[cfg(not(target_os = "none"))]
 fn main() {
     eprintln!("rustls-m4 is built for thumbv7em-none-eabihf");
 }
+
+#[cfg(target_os = "none")]
+#[path = "../../../common/stack.rs"]
+mod stack;
 
 #[cfg(target_os = "none")]
 mod m4 {
@@ -95,10 +101,12 @@ mod m4 {
 
     fn server<R>(f: impl FnOnce() -> R) -> R {
         SERVER_SIDE.store(true, Ordering::Relaxed);
-        mark_server_enter();
-        let r = f();
-        mark_server_leave();
-        r
+        crate::stack::measured(|| {
+            mark_server_enter();
+            let r = f();
+            mark_server_leave();
+            r
+        })
     }
     #[cfg(not(feature = "server-only"))]
     fn client<R>(f: impl FnOnce() -> R) -> R {
@@ -210,6 +218,7 @@ mod m4 {
                     before,
                     SERVER.allocs.load(Ordering::Relaxed)
                 );
+                hprintln!("server stack high-water so far: {} B", unsafe { crate::stack::DEEPEST });
                 mark_phase();
                 server(|| drop(sc));
                 client(|| drop(cc));
@@ -219,6 +228,7 @@ mod m4 {
                 cb.out_len = 0;
             }
         }
+        hprintln!("server stack high-water: {} B", unsafe { crate::stack::DEEPEST });
         debug::exit(debug::EXIT_SUCCESS);
         loop {}
     }
