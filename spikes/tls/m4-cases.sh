@@ -25,7 +25,7 @@ for b in rustls mbedtls; do
   done
   E=$OUT/$b-m4-full
   A=$(llvm-nm "$E" | awk '/ T mark_server_enter$/{print "enter=0x"$1} / T mark_server_leave$/{print "leave=0x"$1} / T mark_phase$/{print "phase=0x"$1}' | paste -sd, -)
-  echo "== $b: handshakes (phase 1: the server's configuration, 2: TLS 1.3, 3: TLS 1.2, then a too-small arena)"
+  echo "== $b: handshakes (phase 1: the server's configuration, 2: TLS 1.3, 3: TLS 1.2, then arenas too small)"
   timeout 600 qemu-system-arm -M mps2-an386 -nographic -semihosting-config enable=on,target=native \
     -icount shift=0 -kernel "$E" -plugin "$OUT/marks.so,$A" -d plugin || true
 done

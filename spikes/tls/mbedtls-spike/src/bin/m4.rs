@@ -168,9 +168,9 @@ mod m4 {
             let cconn = cortex_m::singleton!(: Conn = Conn::zeroed()).unwrap();
             let cert = include_bytes!("../../../certs/operator.der");
             let key = include_bytes!("../../../certs/operator.key.der");
-            // The third: the server's arena limited to 20000 B (what an
+            // Then the server's arena limited to 20000 B and 30000 B (what an
             // allocation failure does on the device).
-            for (tls13, limit) in [(true, 0), (false, 0), (true, 20000)] {
+            for (tls13, limit) in [(true, 0), (false, 0), (true, 20000), (true, 30000)] {
                 if limit != 0 {
                     hprintln!("TLS 1.3 with the server's arena limited to {} B:", limit);
                 }
