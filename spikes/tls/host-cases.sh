@@ -2,6 +2,7 @@
 # The host cases of docs/tls.md ("Choosing the engine"), for both engines:
 # openssl s_client against rustls-host and mbedtls-host on 127.0.0.1.
 #   sh host-cases.sh            (from spikes/tls; builds both host programs)
+# The last cases run rustls with the spike's own provider.
 # Each case prints the server's lines (outcome, role, arena peak) and the
 # client's protocol/cipher/error lines.
 set -u
@@ -35,3 +36,11 @@ case_ rustls 9000 -tls1_3 -cert $C/operator.pem -key $C/operator.key
 case_ mbedtls 20000 -tls1_3 -cert $C/operator.pem -key $C/operator.key
 case_ mbedtls 30000 -tls1_3 -cert $C/operator.pem -key $C/operator.key
 case_ mbedtls 30000 -tls1_2 -cert $C/operator.pem -key $C/operator.key
+# rustls with the spike's own minimal provider (rustls-spike/src/own.rs).
+cargo build -q --release --bin rustls-host --features own-provider || exit 2
+for v in -tls1_3 -tls1_2; do
+  for who in operator stranger mid; do
+    case_ rustls 0 $v -cert $C/$who.pem -key $C/$who.key
+  done
+done
+case_ rustls 4000 -tls1_3 -cert $C/operator.pem -key $C/operator.key

@@ -29,3 +29,16 @@ for b in rustls mbedtls; do
   timeout 600 qemu-system-arm -M mps2-an386 -nographic -semihosting-config enable=on,target=native \
     -icount shift=0 -kernel "$E" -plugin "$OUT/marks.so,$A" -d plugin || true
 done
+# rustls with the spike's own minimal provider (rustls-spike/src/own.rs).
+for f in own-provider own-provider,server-only; do
+  RUSTFLAGS="-C link-arg=-Tlink.x" cargo build -q --release --bin rustls-m4 --target $T --features $f
+  n=rustls-m4-$(echo $f | tr , -)
+  cp "$CARGO_TARGET_DIR/$T/release/rustls-m4" "$OUT/$n"
+  llvm-size -A "$OUT/$n" | awk -v e=$n '/^\.text/{t=$2} /^\.rodata/{r=$2} /^\.data/{d=$2} /^\.bss/{s=$2}
+    END{printf "%-22s .text+.rodata %7d  .data %5d  .bss %7d\n", e, t+r, d, s}'
+done
+E=$OUT/rustls-m4-own-provider
+A=$(llvm-nm "$E" | awk '/ T mark_server_enter$/{print "enter=0x"$1} / T mark_server_leave$/{print "leave=0x"$1} / T mark_phase$/{print "phase=0x"$1}' | paste -sd, -)
+echo "== rustls with its own provider: handshakes"
+timeout 600 qemu-system-arm -M mps2-an386 -nographic -semihosting-config enable=on,target=native \
+  -icount shift=0 -kernel "$E" -plugin "$OUT/marks.so,$A" -d plugin || true

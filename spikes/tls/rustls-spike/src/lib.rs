@@ -12,6 +12,8 @@ extern crate alloc;
 pub mod arena;
 #[path = "../../common/role.rs"]
 pub mod role;
+#[cfg(feature = "own-provider")]
+pub mod own;
 
 use alloc::sync::Arc;
 use alloc::vec;
@@ -39,6 +41,12 @@ impl TimeProvider for FixedTime {
 
 /// One suite family: TLS_AES_128_GCM_SHA256 and
 /// TLS_ECDHE_ECDSA_WITH_AES_128_GCM_SHA256, P-256 only.
+#[cfg(feature = "own-provider")]
+pub fn provider() -> Arc<CryptoProvider> {
+    Arc::new(own::provider())
+}
+
+#[cfg(not(feature = "own-provider"))]
 pub fn provider() -> Arc<CryptoProvider> {
     let all = rustls_rustcrypto::provider();
     let kx = all
