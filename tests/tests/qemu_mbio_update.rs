@@ -91,6 +91,10 @@ fn a_rollout_stops_at_a_forged_file_and_updates_both_with_the_signed_one() {
     assert!(stdout(&output).contains("reboot"), "{}", stdout(&output));
     second.finish();
     let second = boot(&ns, &taps[1], SECOND_IP, &bootloader, &image, &second_state);
+    // 198.18.0.2 now goes to another board (another MAC): the host forgets
+    // the old one's, as a plant's hosts do once the entry goes stale (the
+    // image sends no gratuitous ARP).
+    ns.ip(&["neigh", "flush", "to", DEVICE_IP]).unwrap();
     let first_state = installed_state(&dir, &image);
     let first_qemu = boot(&ns, &taps[0], first, &bootloader, &image, &first_state);
     assert_exit(&mbio(&["password", DEVICE_IP]), 0);
