@@ -27,22 +27,7 @@ pub const BRIDGE: &str = "br0";
 
 /// The `mbio` binary: `MBIO_BIN`, or `target/debug/mbio` of this workspace.
 pub fn mbio_binary() -> PathBuf {
-    if let Some(path) = std::env::var_os("MBIO_BIN") {
-        let path = PathBuf::from(path);
-        assert!(path.is_file(), "MBIO_BIN={} is not a file", path.display());
-        return path;
-    }
-    let target = match std::env::var_os("CARGO_TARGET_DIR") {
-        Some(dir) => PathBuf::from(dir),
-        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join("target"),
-    };
-    let path = target.join("debug").join("mbio");
-    assert!(
-        path.is_file(),
-        "mbio is not built ({} is missing): run `cargo build -p mbio` first, or set MBIO_BIN",
-        path.display()
-    );
-    path
+    crate::host_binary("MBIO_BIN", "mbio")
 }
 
 /// Makes `ns` a plant network: its TAP's address moves to a bridge with

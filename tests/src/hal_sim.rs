@@ -36,22 +36,7 @@ pub const PORT: u16 = 502;
 
 /// The hal-sim binary: `HAL_SIM_BIN`, or `target/debug/hal-sim` of this workspace.
 pub fn binary() -> PathBuf {
-    if let Some(path) = std::env::var_os("HAL_SIM_BIN") {
-        let path = PathBuf::from(path);
-        assert!(path.is_file(), "HAL_SIM_BIN={} is not a file", path.display());
-        return path;
-    }
-    let target = match std::env::var_os("CARGO_TARGET_DIR") {
-        Some(dir) => PathBuf::from(dir),
-        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join("target"),
-    };
-    let path = target.join("debug").join("hal-sim");
-    assert!(
-        path.is_file(),
-        "hal-sim is not built ({} is missing): run `cargo build -p hal-sim` first, or set HAL_SIM_BIN",
-        path.display()
-    );
-    path
+    crate::host_binary("HAL_SIM_BIN", "hal-sim")
 }
 
 /// A running hal-sim in a namespace of its own; killed (and the namespace

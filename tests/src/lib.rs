@@ -69,3 +69,26 @@ where
         }
     })
 }
+
+/// A host program of this workspace the tests run: the path in `variable`,
+/// or `target/debug/NAME` (of `CARGO_TARGET_DIR` if set); fails, saying how
+/// to build it, when it is not there.
+pub fn host_binary(variable: &str, name: &str) -> std::path::PathBuf {
+    use std::path::{Path, PathBuf};
+    if let Some(path) = std::env::var_os(variable) {
+        let path = PathBuf::from(path);
+        assert!(path.is_file(), "{variable}={} is not a file", path.display());
+        return path;
+    }
+    let target = match std::env::var_os("CARGO_TARGET_DIR") {
+        Some(dir) => PathBuf::from(dir),
+        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join("target"),
+    };
+    let path = target.join("debug").join(name);
+    assert!(
+        path.is_file(),
+        "{name} is not built ({} is missing): run `cargo build -p {name}` first, or set {variable}",
+        path.display()
+    );
+    path
+}

@@ -176,33 +176,16 @@ fn points_read_and_written_by_name_are_what_pymodbus_sees() {
     let ip = fleet.members[0].ip.to_string();
 
     // Writes by name, then read back by pymodbus from the map's addresses.
-    let output = fleet.mbio(&[
-        "write",
-        "cell-3",
-        "do.3=on",
-        "do.16=on",
-        "tool_do.2=on",
-        "ao.1.type=voltage",
-        "ao.1=7.5",
-        "ao.2=12.25",
-        "gp.1=1234",
-        "gp.128=-1",
-    ]);
+    let write = |last: &str| {
+        let points =
+            ["do.3=on", "do.16=on", "tool_do.2=on", "ao.1.type=voltage", "ao.1=7.5", "ao.2=12.25", "gp.1=1234"];
+        let args: Vec<&str> = ["write", "cell-3"].into_iter().chain(points).chain([last]).collect();
+        fleet.mbio(&args)
+    };
     // gp is unsigned: -1 is refused before anything is sent.
-    assert_exit(&output, 2);
+    assert_exit(&write("gp.128=-1"), 2);
     assert_eq!(pymodbus(&fleet, &ip, json!([["read_holding", 1, 1]])), json!([[0]]), "nothing written");
-    let output = fleet.mbio(&[
-        "write",
-        "cell-3",
-        "do.3=on",
-        "do.16=on",
-        "tool_do.2=on",
-        "ao.1.type=voltage",
-        "ao.1=7.5",
-        "ao.2=12.25",
-        "gp.1=1234",
-        "gp.128=65535",
-    ]);
+    let output = write("gp.128=65535");
     assert_exit(&output, 0);
     let seen = pymodbus(
         &fleet,
