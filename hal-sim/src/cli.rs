@@ -261,7 +261,7 @@ mod tests {
     use super::*;
     use adapter::device::SafeState;
     use adapter::map::WritePolicy;
-    use adapter::server::{Access, Policy};
+    use adapter::server::{Access, Policy, Rights};
     use embassy_time::Duration;
 
     fn run(args: &[&str]) -> Result<Options, UsageError> {
@@ -369,7 +369,10 @@ mod tests {
         assert_eq!(config.port, 1502);
         assert_eq!(config.max_connections, 3);
         assert_eq!(config.idle_timeout, None);
-        assert_eq!(config.policy, Policy { unit_id: Some(17), write_policy: WritePolicy::Strict, read_only: false });
+        assert_eq!(
+            config.policy,
+            Policy { unit_id: Some(17), write_policy: WritePolicy::Strict, rights: Rights::ReadWrite }
+        );
         assert_eq!(o.control, Some(PathBuf::from("/tmp/c.sock")));
         assert_eq!(o.robot, Mode::Idle);
         let five = run(&["--tap", "t", "--idle-timeout", "5"]).unwrap();

@@ -1,11 +1,14 @@
-//! Access control: which clients may connect, and which may write.
+//! Access control: which clients may connect, and what each may do.
 //!
-//! Modbus has no authentication; an I/O adapter's answer is an allow-list
-//! of client networks. A client outside the `connect` list is refused at
-//! once (the connection is reset); a client outside the `write` list may
-//! read, and its write functions (05, 06, 0F, 10) get exception 01. `None`
-//! means everyone, which is the default (the map's source table lets any
-//! master connect and write).
+//! Plain Modbus has no authentication; an I/O adapter's answer is an
+//! allow-list of client networks. A client outside the `connect` list is
+//! refused at once (the connection is reset); a client outside the `write`
+//! list may read, and its write functions (05, 06, 0F, 10) get exception 01.
+//! `None` means everyone, which is the default (the map's source table lets
+//! any master connect and write).
+//!
+//! What a session may do is its [`Rights`]: the allow-lists give a client
+//! [`Rights::ReadWrite`] or [`Rights::Read`].
 
 use core::fmt;
 
@@ -105,6 +108,44 @@ impl fmt::Display for AllowList {
     }
 }
 
+/// What a session's requests may do. A request its rights do not cover is
+/// answered with exception 01 (Illegal Function), as a function the client
+/// may not use.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Rights {
+    /// Reads, identification and diagnostics; no write function and no
+    /// Clear Counters ([`crate::modbus::pdu::is_write`]).
+    Read,
+    /// Everything the map allows.
+    #[default]
+    ReadWrite,
+}
+
+impl Rights {
+    /// Whether a request is covered: `write` for one that asks for a change.
+    pub const fn allow(self, write: bool) -> bool {
+        match self {
+            Self::Read => !write,
+            Self::ReadWrite => true,
+        }
+    }
+
+    /// The rights both grant (a server-wide limit and a session's own).
+    #[must_use]
+    pub fn and(self, other: Self) -> Self {
+        self.min(other)
+    }
+
+    /// The name the API and the settings use: `read`, `read_write`.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Read => "read",
+            Self::ReadWrite => "read_write",
+        }
+    }
+}
+
 /// Who may connect and who may write. `None`: everyone.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -127,6 +168,11 @@ impl Access {
     /// Whether a client at `address` may write.
     pub fn may_write(&self, address: [u8; 4]) -> bool {
         self.write.is_none_or(|list| list.allows(address))
+    }
+
+    /// What a client at `address` that may connect may do.
+    pub fn rights(&self, address: [u8; 4]) -> Rights {
+        if self.may_write(address) { Rights::ReadWrite } else { Rights::Read }
     }
 }
 
@@ -176,5 +222,16 @@ mod tests {
         assert!(access.may_connect([198, 18, 0, 1]) && !access.may_write([198, 18, 0, 1]));
         assert!(access.may_connect([198, 18, 0, 9]) && access.may_write([198, 18, 0, 9]));
         assert!(!access.may_connect([198, 18, 1, 1]));
+        assert_eq!((access.rights([198, 18, 0, 1]), access.rights([198, 18, 0, 9])), (Rights::Read, Rights::ReadWrite));
+    }
+
+    #[test]
+    fn rights_cover_requests_and_combine_to_the_lesser() {
+        assert!(Rights::ReadWrite.allow(true) && Rights::ReadWrite.allow(false));
+        assert!(!Rights::Read.allow(true) && Rights::Read.allow(false));
+        assert_eq!(Rights::ReadWrite.and(Rights::Read), Rights::Read);
+        assert_eq!(Rights::Read.and(Rights::ReadWrite), Rights::Read);
+        assert_eq!(Rights::ReadWrite.and(Rights::ReadWrite), Rights::ReadWrite);
+        assert_eq!(Rights::default(), Rights::ReadWrite);
     }
 }

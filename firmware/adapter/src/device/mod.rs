@@ -159,7 +159,7 @@ impl<'a> Device<'a> {
             Outcome::Reply { write, exception, .. } => {
                 Stats::count(&self.stats.requests);
                 if let Some(exception) = exception {
-                    self.stats.count_exception(exception, policy.read_only && write);
+                    self.stats.count_exception(exception, !policy.rights.allow(write));
                 }
             }
             Outcome::Discard { .. } => Stats::count(&self.stats.bad_protocol),

@@ -79,7 +79,7 @@ fn diagnostics_read_the_counters_as_they_stand_and_clear_them() {
     assert_eq!(count(shared, 0x0b), 1);
     assert_eq!(count(shared, 0x0b), 2);
     // A client that may not write cannot clear them: refused, and counted as a refused write.
-    let read_only = Policy { read_only: true, ..Policy::default() };
+    let read_only = Policy { rights: crate::access::Rights::Read, ..Policy::default() };
     let mut reply = [0u8; MAX_ADU_LEN];
     shared.respond(&adu(1, 0, 1, &[0x08, 0x00, 0x0a, 0x00, 0x00]), &mut reply, &read_only, NAME);
     assert_eq!(reply[7..9], [0x88, 0x01]);

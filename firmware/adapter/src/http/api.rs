@@ -497,7 +497,7 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
             let idle = now.checked_duration_since(session.last).map_or(0, |idle| idle.as_millis());
             out.number(idle);
             out.text(",\"read_only\":");
-            out.boolean(session.read_only);
+            out.boolean(session.rights == crate::access::Rights::Read);
             out.text("}");
         }
         out.text("],\"counters\":{");

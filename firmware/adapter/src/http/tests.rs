@@ -7,6 +7,7 @@ use serde_json::json;
 
 use super::testing::{CLIENT, Connection, HOST, Response, api, basic, exchange, owner, request, saved, unowned_api};
 use super::*;
+use crate::server::Rights;
 use crate::server::testing::Clock;
 use crate::settings::{Field, Settings};
 
@@ -40,7 +41,7 @@ fn the_status_document_shows_the_device() {
     let server = http.control().server();
     server.service().set_digital_inputs(0b101);
     server.service().update(|image| image.set_register(crate::map::table::reg::DIGITAL_OUTPUTS, 0x8001));
-    server.slots().open(0, 8, Instant::now(), [198, 18, 0, 1], true);
+    server.slots().open(0, 8, Instant::now(), [198, 18, 0, 1], Rights::Read);
     clock.advance(Duration::from_secs(3));
     let response = get(http, &clock, "/api/status");
     assert_eq!(response.status, 200);
@@ -759,7 +760,13 @@ fn the_largest_documents_fit_the_response_buffer() {
     let control = http.control();
     // Every slot open, the counters and the clock at their widest.
     for slot in 0..crate::server::SOCKET_POOL {
-        control.server().slots().open(slot, crate::server::SOCKET_POOL, Instant::now(), [198, 18, 0, 1], false);
+        control.server().slots().open(
+            slot,
+            crate::server::SOCKET_POOL,
+            Instant::now(),
+            [198, 18, 0, 1],
+            Rights::ReadWrite,
+        );
     }
     for counter in [&control.server().stats().requests, &control.server().stats().bad_protocol] {
         counter.store(u32::MAX, core::sync::atomic::Ordering::Relaxed);

@@ -9,6 +9,7 @@
 
 use super::Stats;
 use super::identity::Identity;
+use crate::access::Rights;
 use crate::map::{Image, WritePolicy, Written};
 use crate::modbus::diagnostics::Diagnostic;
 use crate::modbus::mbap::{self, Frame, Header, MAX_ADU_LEN};
@@ -23,10 +24,10 @@ pub struct Policy {
     /// reply exception 0B to any other.
     pub unit_id: Option<u8>,
     pub write_policy: WritePolicy,
-    /// The client may not write: its write functions (05, 06, 0F, 10) and
-    /// Diagnostics' Clear Counters get exception 01, as functions it is not
-    /// allowed (see [`crate::access`] and [`pdu::is_write`]).
-    pub read_only: bool,
+    /// What the client may do. With [`Rights::Read`] its write functions
+    /// (05, 06, 0F, 10) and Diagnostics' Clear Counters ([`pdu::is_write`])
+    /// get exception 01, as functions it is not allowed (see [`crate::access`]).
+    pub rights: Rights,
 }
 
 /// What a request is answered from besides the image: who the device is
@@ -78,7 +79,7 @@ pub fn respond(
         Some(id) if header.unit_id != id && !ALWAYS_ANSWERED_UNITS.contains(&header.unit_id) => {
             Err(Exception::GatewayTargetDeviceFailedToRespond)
         }
-        _ if policy.read_only && write => Err(Exception::IllegalFunction),
+        _ if !policy.rights.allow(write) => Err(Exception::IllegalFunction),
         _ => execute(pdu, out.payload_mut(), image, policy.write_policy, context),
     };
     let (pdu_len, written, exception) = match result {

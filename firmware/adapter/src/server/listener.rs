@@ -10,7 +10,7 @@ use embassy_net::tcp::TcpSocket;
 use embassy_net::{IpAddress, IpEndpoint, Stack};
 use embassy_time::{Duration, Instant, with_timeout};
 
-use super::{Server, Service, SlotId, Stats, serve};
+use super::{Rights, Server, Service, SlotId, Stats, serve};
 use crate::fmt::Ip;
 
 /// Receive buffer of each TCP socket: the largest request (260 bytes) and
@@ -58,10 +58,11 @@ pub async fn listen<S: Service>(stack: Stack<'_>, server: &Server<'_, S>, slot: 
             continue;
         }
         let peer = Peer::of(endpoint);
-        let (may_connect, may_write, max_connections) = server.with_config(|config| {
-            let access = &config.access;
-            let allowed = |list: fn(&super::Access, [u8; 4]) -> bool| peer.address.is_some_and(|a| list(access, a));
-            (allowed(super::Access::may_connect), allowed(super::Access::may_write), config.max_connections)
+        let (may_connect, rights, max_connections) = server.with_config(|config| match peer.address {
+            Some(address) => {
+                (config.access.may_connect(address), config.access.rights(address), config.max_connections)
+            }
+            None => (false, Rights::Read, config.max_connections),
         });
         if !may_connect {
             Stats::count(&server.stats().refused_connections);
@@ -70,10 +71,9 @@ pub async fn listen<S: Service>(stack: Stack<'_>, server: &Server<'_, S>, slot: 
             let _ = with_timeout(CLOSE_TIMEOUT, socket.flush()).await;
             continue;
         }
-        let read_only = !may_write;
-        debug!("slot {}: connection from {}{}", slot, peer, if read_only { " (read-only)" } else { "" });
+        debug!("slot {}: connection from {} ({})", slot, peer, rights.name());
         if let Some(victim) =
-            server.slots().open(slot, max_connections, Instant::now(), peer.address.unwrap_or_default(), read_only)
+            server.slots().open(slot, max_connections, Instant::now(), peer.address.unwrap_or_default(), rights)
         {
             Stats::count(&server.stats().evictions);
             info!("slot {}: all sessions busy, closing the idlest (slot {})", slot, victim);

@@ -18,7 +18,7 @@ use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_time::Duration;
 
-pub use crate::access::{Access, AllowList, Network};
+pub use crate::access::{Access, AllowList, Network, Rights};
 pub use handler::{Context, Outcome, Policy};
 pub use identity::Identity;
 pub use listener::{CLOSE_TIMEOUT, SOCKET_RX_LEN, SOCKET_TX_LEN, listen};
@@ -87,7 +87,7 @@ impl Config {
     pub const DEFAULT: Self = Self {
         port: MODBUS_PORT,
         max_connections: MAX_CONNECTIONS,
-        policy: Policy { unit_id: None, write_policy: crate::map::WritePolicy::Seed, read_only: false },
+        policy: Policy { unit_id: None, write_policy: crate::map::WritePolicy::Seed, rights: Rights::ReadWrite },
         idle_timeout: Some(IDLE_TIMEOUT),
         frame_timeout: FRAME_TIMEOUT,
         access: Access::OPEN,
@@ -174,11 +174,11 @@ impl<'a, S: Service> Server<'a, S> {
 
     /// Answers one request frame into `reply` under the configuration in force.
     pub fn respond(&self, frame: &[u8], reply: &mut [u8; MAX_ADU_LEN]) -> Outcome {
-        self.answer(frame, reply, false).0
+        self.answer(frame, reply, Rights::ReadWrite).0
     }
 
     /// Answers one request frame into `reply` under the configuration in
-    /// force, for a client that may not write when `read_only`; also returns
+    /// force, for a client with `rights`; also returns
     /// the idle timeout in force. The configuration stays locked while the
     /// service answers, so the device name is read in place, never copied
     /// (the service takes the image lock inside: a nested critical section).
@@ -186,10 +186,10 @@ impl<'a, S: Service> Server<'a, S> {
         &self,
         frame: &[u8],
         reply: &mut [u8; MAX_ADU_LEN],
-        read_only: bool,
+        rights: Rights,
     ) -> (Outcome, Option<Duration>) {
         self.with_config(|config| {
-            let policy = Policy { read_only: config.policy.read_only || read_only, ..config.policy };
+            let policy = Policy { rights: config.policy.rights.and(rights), ..config.policy };
             (self.service.respond(frame, reply, &policy, &config.name), config.idle_timeout)
         })
     }

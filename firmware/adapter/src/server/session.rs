@@ -86,7 +86,7 @@ async fn run<T: Read + Write, S: Service>(
     server: &Server<'_, S>,
     slot: SlotId,
 ) -> Result<(), Error<T::Error>> {
-    let read_only = server.slots().read_only(slot);
+    let rights = server.slots().rights(slot);
     let mut rx = [0u8; SESSION_BUFFER_LEN];
     let mut reply = [0u8; MAX_ADU_LEN];
     let mut filled = 0;
@@ -105,7 +105,7 @@ async fn run<T: Read + Write, S: Service>(
             };
             let Some(frame) = pending.get(..len) else { return Err(Error::Internal) };
             // The configuration in force for each request: a change applies at once.
-            let (outcome, idle_timeout) = server.answer(frame, &mut reply, read_only);
+            let (outcome, idle_timeout) = server.answer(frame, &mut reply, rights);
             match outcome {
                 Outcome::Reply { len, function, write, exception, .. } => {
                     // The address is read only when a line is logged (the

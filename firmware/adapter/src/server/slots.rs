@@ -9,7 +9,7 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::Instant;
 
-use super::{Access, SOCKET_POOL};
+use super::{Access, Rights, SOCKET_POOL};
 
 /// Which slot (and listener task) a session runs in: `0..SOCKET_POOL`.
 pub type SlotId = usize;
@@ -20,7 +20,7 @@ pub type SlotId = usize;
 struct Entry {
     last: Instant,
     peer: [u8; 4],
-    read_only: bool,
+    rights: Rights,
 }
 
 /// An open session as [`Slots::sessions`] reports it.
@@ -31,8 +31,8 @@ pub struct Session {
     pub peer: [u8; 4],
     /// When its last request (or its connection) came.
     pub last: Instant,
-    /// Its client may not write.
-    pub read_only: bool,
+    /// What its client may do.
+    pub rights: Rights,
 }
 
 /// One entry per socket while a session is open.
@@ -58,17 +58,17 @@ impl Slots {
         Self { active: Mutex::new(RefCell::new([None; SOCKET_POOL])), evict: [const { Signal::new() }; SOCKET_POOL] }
     }
 
-    /// Opens slot `id` for a new session from `peer` (`read_only`: it may
-    /// not write). If that makes more than `max` sessions, the one idle the
-    /// longest is told to close; its id is returned.
-    pub fn open(&self, id: SlotId, max: usize, now: Instant, peer: [u8; 4], read_only: bool) -> Option<SlotId> {
+    /// Opens slot `id` for a new session from `peer` with `rights`. If that
+    /// makes more than `max` sessions, the one idle the longest is told to
+    /// close; its id is returned.
+    pub fn open(&self, id: SlotId, max: usize, now: Instant, peer: [u8; 4], rights: Rights) -> Option<SlotId> {
         if let Some(signal) = self.evict.get(id) {
             signal.reset();
         }
         let victim = self.active.lock(|active| {
             let mut active = active.borrow_mut();
             let slot = active.get_mut(id)?;
-            *slot = Some(Entry { last: now, peer, read_only });
+            *slot = Some(Entry { last: now, peer, rights });
             let open = active.iter().filter(|s| s.is_some()).count();
             if open <= max {
                 return None;
@@ -124,7 +124,8 @@ impl Slots {
             let mut kept = 0;
             for ((entry, close), _) in active.iter().zip(closing.iter_mut()).zip(0..) {
                 if let Some(entry) = entry {
-                    let admitted = access.may_connect(entry.peer) && (entry.read_only || access.may_write(entry.peer));
+                    let admitted = access.may_connect(entry.peer)
+                        && (entry.rights < Rights::ReadWrite || access.may_write(entry.peer));
                     *close = !admitted;
                     kept += usize::from(admitted);
                 }
@@ -157,17 +158,19 @@ impl Slots {
         self.active.lock(|active| active.borrow().iter().flatten().map(|entry| entry.last).max())
     }
 
-    /// Whether slot `id`'s client may not write (false for a slot not open).
-    pub fn read_only(&self, id: SlotId) -> bool {
-        self.active.lock(|active| active.borrow().get(id).copied().flatten().is_some_and(|entry| entry.read_only))
+    /// What slot `id`'s client may do (for a slot not open, as a test serves
+    /// a stream without a listener, no restriction: [`Rights::ReadWrite`]).
+    pub fn rights(&self, id: SlotId) -> Rights {
+        self.active
+            .lock(|active| active.borrow().get(id).copied().flatten().map_or(Rights::ReadWrite, |entry| entry.rights))
     }
 
     /// The open sessions, by slot (`None`: a listening slot).
     pub fn sessions(&self) -> [Option<Session>; SOCKET_POOL] {
         self.active.lock(|active| {
-            active.borrow().map(|slot| {
-                slot.map(|entry| Session { peer: entry.peer, last: entry.last, read_only: entry.read_only })
-            })
+            active
+                .borrow()
+                .map(|slot| slot.map(|entry| Session { peer: entry.peer, last: entry.last, rights: entry.rights }))
         })
     }
 
@@ -198,10 +201,10 @@ mod tests {
     #[test]
     fn a_new_configuration_closes_who_it_no_longer_admits() {
         let slots = Slots::new();
-        slots.open(0, 8, at(1), [10, 0, 0, 1], false);
-        slots.open(1, 8, at(2), [10, 0, 0, 2], true);
-        slots.open(2, 8, at(3), [10, 0, 1, 3], false);
-        slots.open(3, 8, at(4), [10, 0, 0, 4], false);
+        slots.open(0, 8, at(1), [10, 0, 0, 1], Rights::ReadWrite);
+        slots.open(1, 8, at(2), [10, 0, 0, 2], Rights::Read);
+        slots.open(2, 8, at(3), [10, 0, 1, 3], Rights::ReadWrite);
+        slots.open(3, 8, at(4), [10, 0, 0, 4], Rights::ReadWrite);
         let only =
             |address, prefix| crate::server::AllowList::EMPTY.with(crate::server::Network::new(address, prefix)?);
         // Writers outside 10.0.0.0/24 must go; the read-only client may stay.
@@ -219,7 +222,7 @@ mod tests {
     fn a_lower_limit_closes_the_idlest() {
         let slots = Slots::new();
         for id in 0..4 {
-            slots.open(id, 8, at(10 * id as u64), PEER, false);
+            slots.open(id, 8, at(10 * id as u64), PEER, Rights::ReadWrite);
         }
         slots.touch(0, at(100));
         assert_eq!(slots.enforce(&Access::OPEN, 2), 2);
@@ -232,10 +235,10 @@ mod tests {
     fn the_idlest_session_makes_room() {
         let slots = Slots::new();
         for id in 0..8 {
-            assert_eq!(slots.open(id, 8, at(100 + id as u64), PEER, false), None);
+            assert_eq!(slots.open(id, 8, at(100 + id as u64), PEER, Rights::ReadWrite), None);
         }
         slots.touch(0, at(1_000)); // slot 1 is now the idlest
-        assert_eq!(slots.open(8, 8, at(2_000), PEER, false), Some(1));
+        assert_eq!(slots.open(8, 8, at(2_000), PEER, Rights::ReadWrite), Some(1));
         assert!(slots.evict[1].signaled());
         assert!(!slots.evict[0].signaled());
         slots.close(1);
@@ -245,10 +248,10 @@ mod tests {
     #[test]
     fn a_reused_slot_forgets_an_old_eviction() {
         let slots = Slots::new();
-        slots.open(0, 1, at(0), PEER, false);
-        assert_eq!(slots.open(1, 1, at(10), PEER, false), Some(0));
+        slots.open(0, 1, at(0), PEER, Rights::ReadWrite);
+        assert_eq!(slots.open(1, 1, at(10), PEER, Rights::ReadWrite), Some(0));
         slots.close(0);
-        assert_eq!(slots.open(0, 1, at(20), PEER, false), Some(1));
+        assert_eq!(slots.open(0, 1, at(20), PEER, Rights::ReadWrite), Some(1));
         assert!(!slots.evict[0].signaled(), "slot 0's new session is not evicted");
         assert!(slots.evict[1].signaled());
     }
@@ -256,25 +259,29 @@ mod tests {
     #[test]
     fn each_session_keeps_its_clients_rights() {
         let slots = Slots::new();
-        slots.open(0, 8, at(0), PEER, true);
-        slots.open(1, 8, at(0), PEER, false);
-        assert!(slots.read_only(0) && !slots.read_only(1));
-        assert!(!slots.read_only(2) && !slots.read_only(SOCKET_POOL), "no session, no restriction to report");
+        slots.open(0, 8, at(0), PEER, Rights::Read);
+        slots.open(1, 8, at(0), PEER, Rights::ReadWrite);
+        assert_eq!((slots.rights(0), slots.rights(1)), (Rights::Read, Rights::ReadWrite));
+        assert_eq!(
+            (slots.rights(2), slots.rights(SOCKET_POOL)),
+            (Rights::ReadWrite, Rights::ReadWrite),
+            "no session, no restriction"
+        );
         let sessions = slots.sessions();
-        assert_eq!(sessions[0], Some(Session { peer: PEER, last: at(0), read_only: true }));
-        assert_eq!(sessions[1], Some(Session { peer: PEER, last: at(0), read_only: false }));
+        assert_eq!(sessions[0], Some(Session { peer: PEER, last: at(0), rights: Rights::Read }));
+        assert_eq!(sessions[1], Some(Session { peer: PEER, last: at(0), rights: Rights::ReadWrite }));
         assert!(sessions[2..].iter().all(Option::is_none));
         slots.close(0);
-        slots.open(0, 8, at(1), PEER, false);
-        assert!(!slots.read_only(0), "a new client on the same slot has its own rights");
+        slots.open(0, 8, at(1), PEER, Rights::ReadWrite);
+        assert_eq!(slots.rights(0), Rights::ReadWrite, "a new client on the same slot has its own rights");
     }
 
     #[test]
     fn evict_all_reaches_open_sessions_only() {
         let slots = Slots::new();
         assert_eq!(slots.last_activity(), None);
-        slots.open(0, 8, at(5), PEER, false);
-        slots.open(2, 8, at(7), PEER, false);
+        slots.open(0, 8, at(5), PEER, Rights::ReadWrite);
+        slots.open(2, 8, at(7), PEER, Rights::ReadWrite);
         slots.touch(0, at(9));
         assert_eq!(slots.last_activity(), Some(at(9)));
         slots.evict_all();
@@ -288,7 +295,7 @@ mod tests {
     #[test]
     fn out_of_range_ids_are_ignored() {
         let slots = Slots::new();
-        assert_eq!(slots.open(SOCKET_POOL, 1, at(0), PEER, false), None);
+        assert_eq!(slots.open(SOCKET_POOL, 1, at(0), PEER, Rights::ReadWrite), None);
         slots.touch(SOCKET_POOL, at(0));
         slots.close(SOCKET_POOL);
         assert_eq!(slots.open_count(), 0);

@@ -23,7 +23,7 @@ fn shared_with(config: Config) -> (&'static Server<'static, crate::device::Devic
 fn a_read_only_client_may_read_and_its_writes_get_exception_01() {
     let _clock = Clock::take();
     let (shared, pins) = shared_with(Config::DEFAULT);
-    shared.slots().open(0, 8, embassy_time::Instant::now(), [198, 18, 0, 1], true);
+    shared.slots().open(0, 8, embassy_time::Instant::now(), [198, 18, 0, 1], Rights::Read);
     let (wire, mut end) = Wire::new();
     let mut session = pin!(serve(&mut end, shared, 0));
     let writes: [&[u8]; 4] = [
@@ -51,9 +51,9 @@ fn a_read_only_client_may_read_and_its_writes_get_exception_01() {
 #[test]
 fn a_server_wide_read_only_policy_holds_whatever_the_slot_says() {
     let _clock = Clock::take();
-    let config = Config { policy: Policy { read_only: true, ..Policy::default() }, ..Config::DEFAULT };
+    let config = Config { policy: Policy { rights: Rights::Read, ..Policy::default() }, ..Config::DEFAULT };
     let (shared, _) = shared_with(config);
-    shared.slots().open(0, 8, embassy_time::Instant::now(), [198, 18, 0, 1], false);
+    shared.slots().open(0, 8, embassy_time::Instant::now(), [198, 18, 0, 1], Rights::ReadWrite);
     let (wire, mut end) = Wire::new();
     let mut session = pin!(serve(&mut end, shared, 0));
     wire.send(&adu(1, 0, 1, &WRITE_COIL_16_ON));
@@ -106,7 +106,7 @@ fn identification_answers_the_name_in_force() {
 fn a_read_only_client_may_not_clear_the_counters() {
     let _clock = Clock::take();
     let (shared, _) = shared_with(Config::DEFAULT);
-    shared.slots().open(0, 8, embassy_time::Instant::now(), [198, 18, 0, 1], true);
+    shared.slots().open(0, 8, embassy_time::Instant::now(), [198, 18, 0, 1], Rights::Read);
     let (wire, mut end) = Wire::new();
     let mut session = pin!(serve(&mut end, shared, 0));
     wire.send(&adu(1, 0, 1, &READ_128));

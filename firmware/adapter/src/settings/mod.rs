@@ -18,7 +18,7 @@ use core::fmt;
 
 pub use self::parse::{Cidr, Invalid, Ipv4};
 pub use self::values::{NetMode, RobotLink};
-use crate::access::{Access, AllowList, Network};
+use crate::access::{Access, AllowList, Network, Rights};
 use crate::device::{SafeState, Watchdog};
 use crate::map::WritePolicy;
 use crate::map::table::{ANALOG_MAX_MICROAMPS, TOOL_PINS};
@@ -166,7 +166,7 @@ impl Settings {
         server::Config {
             port: modbus.port,
             max_connections: usize::from(modbus.max_connections).clamp(1, MAX_CONNECTIONS),
-            policy: Policy { unit_id: modbus.unit_id, write_policy: modbus.write_policy, read_only: false },
+            policy: Policy { unit_id: modbus.unit_id, write_policy: modbus.write_policy, rights: Rights::ReadWrite },
             idle_timeout: match modbus.idle_timeout_s {
                 0 => None,
                 secs => Some(Duration::from_secs(u64::from(secs))),

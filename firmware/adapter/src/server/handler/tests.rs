@@ -1,6 +1,7 @@
 //! Whole frames in, whole frames out: every exception path, unit ids, echoes.
 
 use super::*;
+use crate::access::Rights;
 use crate::map::table::reg;
 use crate::server::identity;
 use crate::settings::Name;
@@ -312,7 +313,7 @@ fn read_device_identification_exceptions() {
     // The unit id filter comes first; a read-only client may read it all.
     let filtered = Policy { unit_id: Some(5), ..seed() };
     assert_eq!(reply_pdu(&mut image, &filtered, 9, &[0x2b, 0x0e, 0x04, 0x09]), [0xab, 0x0b]);
-    let read_only = Policy { read_only: true, ..seed() };
+    let read_only = Policy { rights: Rights::Read, ..seed() };
     assert_eq!(reply_pdu(&mut image, &read_only, 1, &[0x2b, 0x0e, 0x01, 0x00]), identification(0x01, &[0, 1, 2]));
 }
 
@@ -417,7 +418,7 @@ fn diagnostics_clear_counters_is_a_write() {
     let stats = counted();
     let clear = [0x08, 0x00, 0x0a, 0x00, 0x00];
     // A client that may not write: 01, and nothing cleared.
-    let read_only = Policy { read_only: true, ..seed() };
+    let read_only = Policy { rights: Rights::Read, ..seed() };
     let (reply, outcome) = diagnose(&stats, &read_only, &clear);
     assert_eq!(reply, [0x88, 0x01]);
     assert!(matches!(outcome, Outcome::Reply { write: true, exception: Some(Exception::IllegalFunction), .. }));

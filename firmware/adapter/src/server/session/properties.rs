@@ -23,6 +23,7 @@ use test_support::framer::{self, adu, split_replies};
 use test_support::reply::{Answer, Refusals, check_reply};
 
 use super::{Error, serve};
+use crate::access::Rights;
 use crate::device::Device;
 use crate::device::Watchdog;
 use crate::map::WritePolicy;
@@ -99,9 +100,9 @@ fn policy() -> impl Strategy<Value = Policy> {
     (
         prop_oneof![Just(None), Just(Some(1u8))],
         prop_oneof![Just(WritePolicy::Seed), Just(WritePolicy::Strict)],
-        prop_oneof![3 => Just(false), 1 => Just(true)],
+        prop_oneof![3 => Just(Rights::ReadWrite), 1 => Just(Rights::Read)],
     )
-        .prop_map(|(unit_id, write_policy, read_only)| Policy { unit_id, write_policy, read_only })
+        .prop_map(|(unit_id, write_policy, rights)| Policy { unit_id, write_policy, rights })
 }
 
 fn shared(policy: Policy) -> &'static Server<'static, Device<'static>> {
@@ -111,7 +112,7 @@ fn shared(policy: Policy) -> &'static Server<'static, Device<'static>> {
 
 /// What `policy` refuses, in the reference's terms.
 fn refusals(policy: &Policy) -> Refusals {
-    Refusals { unit_id: policy.unit_id, read_only: policy.read_only }
+    Refusals { unit_id: policy.unit_id, read_only: !policy.rights.allow(true) }
 }
 
 proptest! {

@@ -10,7 +10,7 @@ use super::{Error, serve};
 use crate::device::Device;
 use crate::device::Watchdog;
 use crate::server::testing::{Clock, server_with};
-use crate::server::{Config, Outcome, Server};
+use crate::server::{Config, Outcome, Rights, Server};
 use test_support::duplex::{Wire, poll_once};
 use test_support::fixtures::PYMODBUS;
 use test_support::framer::{self, adu, split_replies};
@@ -220,11 +220,11 @@ fn the_idlest_session_is_closed_to_make_room() {
     let (_wire_b, mut end_b) = Wire::new();
     let (_wire_c, mut end_c) = Wire::new();
 
-    assert_eq!(slots.open(0, 2, Instant::now(), [198, 18, 0, 1], false), None);
+    assert_eq!(slots.open(0, 2, Instant::now(), [198, 18, 0, 1], Rights::ReadWrite), None);
     let mut a = pin!(serve(&mut end_a, shared, 0));
     assert!(poll_once(a.as_mut()).is_pending());
     clock.advance(Duration::from_millis(100));
-    assert_eq!(slots.open(1, 2, Instant::now(), [198, 18, 0, 1], false), None);
+    assert_eq!(slots.open(1, 2, Instant::now(), [198, 18, 0, 1], Rights::ReadWrite), None);
     let mut b = pin!(serve(&mut end_b, shared, 1));
     assert!(poll_once(b.as_mut()).is_pending());
 
@@ -234,7 +234,7 @@ fn the_idlest_session_is_closed_to_make_room() {
     assert!(poll_once(a.as_mut()).is_pending());
     clock.advance(Duration::from_secs(1));
 
-    assert_eq!(slots.open(2, 2, Instant::now(), [198, 18, 0, 1], false), Some(1));
+    assert_eq!(slots.open(2, 2, Instant::now(), [198, 18, 0, 1], Rights::ReadWrite), Some(1));
     let mut c = pin!(serve(&mut end_c, shared, 2));
     assert!(poll_once(c.as_mut()).is_pending());
     assert_eq!(poll_once(b.as_mut()), Poll::Ready(Err(Error::Evicted)));
