@@ -146,6 +146,136 @@ impl Rights {
     }
 }
 
+/// Most roles the Modbus/TCP Security port tells apart (a plant names a
+/// few: an operator, a viewer, a historian).
+pub const MAX_ROLES: usize = 4;
+/// The longest role name, in bytes.
+pub const MAX_ROLE_LEN: usize = 24;
+
+/// A role name: 1 to [`MAX_ROLE_LEN`] printable ASCII characters other
+/// than `,` and `=` (the settings' separators), compared byte for byte
+/// with the role a client certificate carries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Role {
+    bytes: [u8; MAX_ROLE_LEN],
+    len: u8,
+}
+
+impl Role {
+    /// `text` as a role name; `None` if it breaks the rule.
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "i < text.len() <= MAX_ROLE_LEN is checked first; const fn cannot use get_mut"
+    )]
+    pub const fn new(text: &[u8]) -> Option<Self> {
+        if text.is_empty() || text.len() > MAX_ROLE_LEN {
+            return None;
+        }
+        let mut bytes = [0; MAX_ROLE_LEN];
+        let mut i = 0;
+        while i < text.len() {
+            let byte = text[i];
+            if !byte.is_ascii_graphic() || byte == b',' || byte == b'=' {
+                return None;
+            }
+            bytes[i] = byte;
+            i += 1;
+        }
+        Some(Self { bytes, len: text.len() as u8 })
+    }
+
+    /// Whether both name the same role (the bytes past `len` are zero).
+    const fn same(&self, other: &Self) -> bool {
+        let mut i = 0;
+        while i < MAX_ROLE_LEN {
+            #[allow(clippy::indexing_slicing, reason = "i < MAX_ROLE_LEN, both arrays' length")]
+            if self.bytes[i] != other.bytes[i] {
+                return false;
+            }
+            i += 1;
+        }
+        self.len == other.len
+    }
+
+    /// The name's bytes.
+    pub fn as_bytes(&self) -> &[u8] {
+        self.bytes.get(..usize::from(self.len)).unwrap_or(&[])
+    }
+}
+
+/// The roles a Modbus/TCP Security client may hold and the [`Rights`] each
+/// gives: up to [`MAX_ROLES`], each named once. A role not in the list gets
+/// no session.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Roles {
+    roles: [(Role, Rights); MAX_ROLES],
+    len: usize,
+}
+
+impl Roles {
+    /// No role: no client gets a session.
+    pub const EMPTY: Self =
+        Self { roles: [(Role { bytes: [0; MAX_ROLE_LEN], len: 0 }, Rights::Read); MAX_ROLES], len: 0 };
+
+    /// `operator` reads and writes, `viewer` reads.
+    #[allow(clippy::unwrap_used, reason = "const: the names keep the rule, or the build fails")]
+    pub const DEFAULT: Self = {
+        let operator = Role::new(b"operator").unwrap();
+        let viewer = Role::new(b"viewer").unwrap();
+        Self::EMPTY.with(operator, Rights::ReadWrite).unwrap().with(viewer, Rights::Read).unwrap()
+    };
+
+    /// The list with `role` giving `rights` added; `None` when it is full
+    /// or names `role` already.
+    #[must_use]
+    #[allow(
+        clippy::indexing_slicing,
+        reason = "i < len <= MAX_ROLES is checked first; const fn cannot use get or get_mut"
+    )]
+    pub const fn with(mut self, role: Role, rights: Rights) -> Option<Self> {
+        if self.len >= MAX_ROLES {
+            return None;
+        }
+        let mut i = 0;
+        while i < self.len {
+            let (known, _) = self.roles[i];
+            if known.same(&role) {
+                return None;
+            }
+            i += 1;
+        }
+        self.roles[self.len] = (role, rights);
+        self.len += 1;
+        Some(self)
+    }
+
+    /// The roles and their rights, in the order given.
+    pub fn iter(&self) -> impl Iterator<Item = (&Role, Rights)> {
+        self.roles.get(..self.len).unwrap_or(&[]).iter().map(|(role, rights)| (role, *rights))
+    }
+
+    /// The rights `role` (a certificate's, as its bytes) gives; `None`: no session.
+    pub fn rights(&self, role: &[u8]) -> Option<Rights> {
+        self.iter().find(|(known, _)| known.as_bytes() == role).map(|(_, rights)| rights)
+    }
+
+    /// Writes `role=rights,...` as the settings parse it.
+    pub fn write_to(&self, out: &mut dyn fmt::Write) -> fmt::Result {
+        for (i, (role, rights)) in self.iter().enumerate() {
+            if i > 0 {
+                out.write_str(",")?;
+            }
+            // A role is printable ASCII by construction.
+            out.write_str(core::str::from_utf8(role.as_bytes()).unwrap_or(""))?;
+            out.write_str("=")?;
+            out.write_str(rights.name())?;
+        }
+        Ok(())
+    }
+}
+
 /// Who may connect and who may write. `None`: everyone.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -223,6 +353,36 @@ mod tests {
         assert!(access.may_connect([198, 18, 0, 9]) && access.may_write([198, 18, 0, 9]));
         assert!(!access.may_connect([198, 18, 1, 1]));
         assert_eq!((access.rights([198, 18, 0, 1]), access.rights([198, 18, 0, 9])), (Rights::Read, Rights::ReadWrite));
+    }
+
+    #[test]
+    fn roles_map_a_certificate_role_to_rights_exactly() {
+        let roles = Roles::DEFAULT;
+        assert_eq!(roles.rights(b"operator"), Some(Rights::ReadWrite));
+        assert_eq!(roles.rights(b"viewer"), Some(Rights::Read));
+        for unknown in [&b"Operator"[..], b"operator ", b"", b"oper", b"operator\0"] {
+            assert_eq!(roles.rights(unknown), None, "{unknown:?}");
+        }
+        let mut text = String::new();
+        roles.write_to(&mut text).unwrap();
+        assert_eq!(text, "operator=read_write,viewer=read");
+        assert_eq!(Roles::EMPTY.rights(b"operator"), None);
+    }
+
+    #[test]
+    fn role_names_keep_their_rule_and_are_named_once() {
+        assert!(Role::new(b"historian-2").is_some());
+        assert!(Role::new(&[b'r'; MAX_ROLE_LEN]).is_some());
+        for bad in [&b""[..], &[b'r'; MAX_ROLE_LEN + 1], b"a b", b"a,b", b"a=b", "é".as_bytes(), b"a\n"] {
+            assert_eq!(Role::new(bad), None, "{bad:?}");
+        }
+        let operator = Role::new(b"operator").unwrap();
+        assert_eq!(Roles::DEFAULT.with(operator, Rights::Read), None, "named twice");
+        let mut roles = Roles::EMPTY;
+        for i in 0..MAX_ROLES as u8 {
+            roles = roles.with(Role::new(&[b'a' + i]).unwrap(), Rights::Read).unwrap();
+        }
+        assert_eq!(roles.with(Role::new(b"z").unwrap(), Rights::Read), None, "full");
     }
 
     #[test]

@@ -257,7 +257,7 @@ fn the_settings_document_has_every_field_grouped_and_no_secret() {
     assert!(!String::from_utf8_lossy(&response.body).contains("horse"));
     let document = response.json();
     let groups = document.as_object().unwrap();
-    assert_eq!(groups.keys().collect::<Vec<_>>(), ["admin", "device", "modbus", "network", "robot", "watchdog"]);
+    assert_eq!(groups.keys().collect::<Vec<_>>(), ["admin", "device", "modbus", "network", "robot", "tls", "watchdog"]);
     for &field in Field::ALL {
         let value = &document[field.group()][field.name()];
         match field.kind() {

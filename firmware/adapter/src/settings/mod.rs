@@ -17,8 +17,8 @@ mod values;
 use core::fmt;
 
 pub use self::parse::{Cidr, Invalid, Ipv4};
-pub use self::values::{NetMode, RobotLink};
-use crate::access::{Access, AllowList, Network, Rights};
+pub use self::values::{NetMode, PlainHttp, RobotLink};
+use crate::access::{Access, AllowList, Network, Rights, Roles};
 use crate::device::{SafeState, Watchdog};
 use crate::map::WritePolicy;
 use crate::map::table::{ANALOG_MAX_MICROAMPS, TOOL_PINS};
@@ -90,6 +90,21 @@ pub struct RobotSettings {
     pub poll_ms: u16,
 }
 
+/// The `tls` group: Modbus/TCP Security, and which plain ports stay open
+/// (docs/tls.md).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct TlsSettings {
+    /// Modbus/TCP Security on port 802.
+    pub modbus: bool,
+    /// The roles a client certificate may carry, and their rights.
+    pub roles: Roles,
+    /// Plain Modbus TCP on `modbus.port`.
+    pub plain_modbus: bool,
+    /// What port 80 does.
+    pub plain_http: PlainHttp,
+}
+
 /// Every setting of the device.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -99,6 +114,7 @@ pub struct Settings {
     pub modbus: ModbusSettings,
     pub watchdog: WatchdogSettings,
     pub robot: RobotSettings,
+    pub tls: TlsSettings,
 }
 
 /// The longest idle timeout (a day).
@@ -122,6 +138,7 @@ impl Settings {
         },
         watchdog: WatchdogSettings { timeout_ms: 0, safe_do: 0, safe_tool_do: 0, safe_ao1: 0, safe_ao2: 0 },
         robot: RobotSettings { link: None, poll_ms: 100 },
+        tls: TlsSettings { modbus: true, roles: Roles::DEFAULT, plain_modbus: true, plain_http: PlainHttp::Redirect },
     };
 
     /// The rules that tie fields together; each field's own rule was checked
@@ -137,7 +154,7 @@ impl Settings {
 
     /// The cross-field rules this whole breaks (in `const` context too, so
     /// a board's build-time settings are checked at compile time).
-    const fn broken_rules(&self) -> [Option<(Field, &'static str)>; 2] {
+    const fn broken_rules(&self) -> [Option<(Field, &'static str)>; 3] {
         let network = &self.network;
         let address = if matches!(network.mode, NetMode::Static) && network.address.is_none() {
             Some((Field::NetworkAddress, "required when the mode is static"))
@@ -150,7 +167,12 @@ impl Settings {
             (Some(gateway), Some(address)) if address.contains(gateway.0) => None,
             (Some(_), Some(_)) => Some((Field::NetworkGateway, "must lie inside the address's network")),
         };
-        [address, gateway]
+        let modbus = if !self.tls.modbus && !self.tls.plain_modbus {
+            Some((Field::TlsPlainModbus, "may be off only while tls.modbus is on: Modbus must be served somewhere"))
+        } else {
+            None
+        };
+        [address, gateway, modbus]
     }
 
     /// Whether going from these settings to `new` needs a reboot: a field
@@ -288,6 +310,20 @@ impl Show for Option<AllowList> {
         Ok(())
     }
 }
+
+impl Show for bool {
+    fn show(&self, out: &mut dyn fmt::Write) -> fmt::Result {
+        out.write_str(if *self { "on" } else { "off" })
+    }
+}
+
+impl Show for PlainHttp {
+    fn show(&self, out: &mut dyn fmt::Write) -> fmt::Result {
+        out.write_str(self.as_str())
+    }
+}
+
+show_written!(Roles);
 
 impl Show for WritePolicy {
     fn show(&self, out: &mut dyn fmt::Write) -> fmt::Result {
@@ -563,6 +599,26 @@ fields! {
         env "ROBOT_POLL_MS", flag "robot-poll-ms",
         rule "20-1000 milliseconds",
         |text| number!(text, 20, 1000, u16);
+    /// Modbus/TCP Security on port 802.
+    TlsModbus: tls.modbus, Text, AfterReboot,
+        env "TLS_MODBUS", flag "tls-modbus",
+        rule "on or off (Modbus/TCP Security on port 802)",
+        |text| parse::on_off(text);
+    /// The client certificates' roles and their rights.
+    TlsRoles: tls.roles, Text, AtOnce,
+        env "TLS_ROLES", flag "tls-roles",
+        rule "none, or up to 4 comma-separated role=rights (rights read_write or read; a role is 1-24 printable ASCII characters but , and =) such as operator=read_write,viewer=read",
+        |text| parse::roles(text);
+    /// Plain Modbus TCP on modbus.port.
+    TlsPlainModbus: tls.plain_modbus, Text, AfterReboot,
+        env "TLS_PLAIN_MODBUS", flag "plain-modbus",
+        rule "on or off (plain Modbus TCP on modbus.port; off only while tls.modbus is on)",
+        |text| parse::on_off(text);
+    /// What port 80 does.
+    TlsPlainHttp: tls.plain_http, Text, AtOnce,
+        env "TLS_PLAIN_HTTP", flag "plain-http",
+        rule "redirect (to HTTPS on 443) or serve (the page and the API in clear, for a closed network)",
+        |text| PlainHttp::parse(text);
 }
 
 /// Most errors one change can have: one per field.

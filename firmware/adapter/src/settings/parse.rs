@@ -8,7 +8,7 @@
 
 use core::fmt;
 
-use crate::access::{AllowList, Network};
+use crate::access::{AllowList, Network, Rights, Role, Roles};
 use crate::text;
 
 pub use crate::text::Invalid;
@@ -290,9 +290,96 @@ pub const fn allow_list(text: &str) -> Result<Option<AllowList>, Invalid> {
     }
 }
 
+/// `read_write` or `read`.
+const fn rights(text: &[u8]) -> Option<Rights> {
+    if bytes_are(text, b"read_write") {
+        Some(Rights::ReadWrite)
+    } else if bytes_are(text, b"read") {
+        Some(Rights::Read)
+    } else {
+        None
+    }
+}
+
+const fn bytes_are(text: &[u8], word: &[u8]) -> bool {
+    match (core::str::from_utf8(text), core::str::from_utf8(word)) {
+        (Ok(text), Ok(word)) => is(text, word),
+        _ => false,
+    }
+}
+
+/// The Modbus/TCP Security roles: `none` (no client gets a session), or up
+/// to [`crate::access::MAX_ROLES`] comma-separated `role=rights`, each role
+/// named once (`operator=read_write,viewer=read`). An empty list is
+/// refused, as an allow-list's is: `none` must be written out.
+pub const fn roles(text: &str) -> Result<Roles, Invalid> {
+    if text.is_empty() {
+        return Err(Invalid);
+    }
+    if is(text, "none") {
+        return Ok(Roles::EMPTY);
+    }
+    let mut roles = Roles::EMPTY;
+    let mut rest = text.as_bytes();
+    loop {
+        let (item, tail, last) = match split_once(rest, b',') {
+            Some((item, tail)) => (item, tail, false),
+            None => (rest, &[] as &[u8], true),
+        };
+        let Some((name, granted)) = split_once(item, b'=') else { return Err(Invalid) };
+        let (Some(role), Some(granted)) = (Role::new(name), rights(granted)) else { return Err(Invalid) };
+        roles = match roles.with(role, granted) {
+            Some(roles) => roles,
+            None => return Err(Invalid),
+        };
+        if last {
+            return Ok(roles);
+        }
+        rest = tail;
+    }
+}
+
+/// `on` or `off`.
+pub const fn on_off(text: &str) -> Result<bool, Invalid> {
+    if is(text, "on") {
+        Ok(true)
+    } else if is(text, "off") {
+        Ok(false)
+    } else {
+        Err(Invalid)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn roles_parse_whole_or_not_at_all() {
+        assert_eq!(roles("operator=read_write,viewer=read"), Ok(Roles::DEFAULT));
+        assert_eq!(roles("none"), Ok(Roles::EMPTY));
+        let one = roles("historian=read").unwrap();
+        assert_eq!((one.rights(b"historian"), one.rights(b"operator")), (Some(Rights::Read), None));
+        for bad in [
+            "",
+            ",",
+            "operator",
+            "operator=",
+            "=read",
+            "operator=write",
+            "operator=read_write,",
+            "operator=read,operator=read_write",
+            "a=read,b=read,c=read,d=read,e=read",
+            "oper ator=read",
+            "operator=READ",
+        ] {
+            assert_eq!(roles(bad), Err(Invalid), "{bad:?}");
+        }
+        assert_eq!(
+            (on_off("on"), on_off("off"), on_off("ON"), on_off("")),
+            (Ok(true), Ok(false), Err(Invalid), Err(Invalid))
+        );
+    }
 
     #[test]
     fn addresses_parse() {
