@@ -1,0 +1,127 @@
+//! Mbed TLS's `calloc` and `free` over one fixed arena: the only memory
+//! in the firmware handed out at run time, TLS's alone, its size the
+//! board's named constant. When it is full, `calloc` returns null and Mbed
+//! TLS fails what it was doing (`MBEDTLS_ERR_SSL_ALLOC_FAILED`, a refused
+//! handshake); nothing panics and nothing resets.
+
+use core::alloc::Layout;
+use core::cell::RefCell;
+use core::ffi::c_void;
+use core::ptr::{self, NonNull};
+
+use critical_section::Mutex;
+use linked_list_allocator::Heap;
+
+/// Every block starts with its size, so `free` can give back what `calloc`
+/// took; this keeps the payload aligned for any C type.
+const HEADER: usize = 16;
+
+/// The arena and what it has handed out.
+struct Arena {
+    heap: Heap,
+    /// Bytes handed out now, and at most since [`init`] or [`reset_peak`].
+    used: usize,
+    peak: usize,
+    /// Requests refused because the arena was full.
+    refused: u32,
+}
+
+static ARENA: Mutex<RefCell<Option<Arena>>> = Mutex::new(RefCell::new(None));
+
+/// How the arena stands.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Usage {
+    /// Its size.
+    pub size: usize,
+    /// Bytes handed out now, headers included.
+    pub used: usize,
+    /// The most handed out at once.
+    pub peak: usize,
+    /// Requests refused for want of room.
+    pub refused: u32,
+}
+
+/// Hands `memory` to Mbed TLS as its arena. Called once, by [`crate::init`].
+pub(crate) fn init(memory: &'static mut [u8]) {
+    let size = memory.len();
+    let mut heap = Heap::empty();
+    // SAFETY: `memory` is 'static and exclusively ours from here on: the
+    // heap is its only user.
+    unsafe { heap.init(memory.as_mut_ptr(), size) };
+    critical_section::with(|cs| {
+        *ARENA.borrow_ref_mut(cs) = Some(Arena { heap, used: 0, peak: 0, refused: 0 });
+    });
+}
+
+/// The arena's size and use.
+pub fn usage() -> Usage {
+    critical_section::with(|cs| match ARENA.borrow_ref(cs).as_ref() {
+        Some(arena) => Usage { size: arena.heap.size(), used: arena.used, peak: arena.peak, refused: arena.refused },
+        None => Usage::default(),
+    })
+}
+
+/// Starts the peak over from what is in use now (to measure one handshake).
+pub fn reset_peak() {
+    critical_section::with(|cs| {
+        if let Some(arena) = ARENA.borrow_ref_mut(cs).as_mut() {
+            arena.peak = arena.used;
+        }
+    });
+}
+
+fn layout(payload: usize) -> Option<Layout> {
+    Layout::from_size_align(payload.checked_add(HEADER)?, HEADER).ok()
+}
+
+/// Mbed TLS's `calloc`: `count * size` zeroed bytes, or null.
+pub(crate) unsafe extern "C" fn calloc(count: usize, size: usize) -> *mut c_void {
+    let Some(payload) = count.checked_mul(size) else { return ptr::null_mut() };
+    let Some(layout) = layout(payload) else { return ptr::null_mut() };
+    let block = critical_section::with(|cs| {
+        let mut arena = ARENA.borrow_ref_mut(cs);
+        let arena = arena.as_mut()?;
+        match arena.heap.allocate_first_fit(layout) {
+            Ok(block) => {
+                arena.used += layout.size();
+                arena.peak = arena.peak.max(arena.used);
+                Some(block)
+            }
+            Err(()) => {
+                arena.refused = arena.refused.saturating_add(1);
+                None
+            }
+        }
+    });
+    let Some(block) = block else { return ptr::null_mut() };
+    let block = block.as_ptr();
+    // SAFETY: the block holds HEADER + payload bytes, aligned to HEADER.
+    unsafe {
+        block.cast::<usize>().write(payload);
+        let data = block.add(HEADER);
+        data.write_bytes(0, payload);
+        data.cast()
+    }
+}
+
+/// Mbed TLS's `free`: gives back a block from [`calloc`]; null is ignored.
+pub(crate) unsafe extern "C" fn free(data: *mut c_void) {
+    if data.is_null() {
+        return;
+    }
+    // SAFETY: `data` came from `calloc`, HEADER bytes past the block's
+    // start, where its payload size was written.
+    let (block, payload) = unsafe {
+        let block = data.cast::<u8>().sub(HEADER);
+        (block, block.cast::<usize>().read())
+    };
+    let (Some(block), Some(layout)) = (NonNull::new(block), layout(payload)) else { return };
+    critical_section::with(|cs| {
+        if let Some(arena) = ARENA.borrow_ref_mut(cs).as_mut() {
+            // SAFETY: the block and its layout are the ones `calloc` took.
+            unsafe { arena.heap.deallocate(block, layout) };
+            arena.used = arena.used.saturating_sub(layout.size());
+        }
+    });
+}
