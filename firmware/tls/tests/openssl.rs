@@ -14,65 +14,20 @@
     reason = "a failed step is a failed test"
 )]
 
-use std::io::{Read as _, Write as _};
-use std::net::{TcpListener, TcpStream};
-use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::sync::{Mutex, Once};
+mod common;
+
+use std::io::Write as _;
 use std::thread;
 
-use embedded_io_async::{ErrorType, Read, Write};
+use common::{Blocking, fixture, listener, s_client};
+use embedded_io_async::{Read, Write};
 use tls::{Credentials, Server, Session};
 
-/// Large enough for the configuration and a few sessions at once.
+/// Large enough for the configuration and a session.
 const ARENA_LEN: usize = 96 * 1024;
 
-fn fixtures() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures")
-}
-
-fn fixture(name: &str) -> Vec<u8> {
-    std::fs::read(fixtures().join(name)).unwrap()
-}
-
-/// The host's entropy, as hal-sim takes it.
-fn os_entropy(buf: &mut [u8]) -> bool {
-    getrandom::fill(buf).is_ok()
-}
-
-/// `tls::init` once per process; tests share the arena one at a time.
 fn init() -> std::sync::MutexGuard<'static, ()> {
-    static INIT: Once = Once::new();
-    static SERIAL: Mutex<()> = Mutex::new(());
-    INIT.call_once(|| {
-        let arena = Box::leak(vec![0u8; ARENA_LEN].into_boxed_slice());
-        tls::init(arena, os_entropy).unwrap();
-    });
-    SERIAL.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
-}
-
-/// A blocking std socket as an `embedded-io-async` stream (the tests'
-/// executor is `block_on`, one connection at a time).
-struct Blocking(TcpStream);
-
-impl ErrorType for Blocking {
-    type Error = embedded_io_async::ErrorKind;
-}
-
-impl Read for Blocking {
-    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
-        self.0.read(buf).map_err(|_| embedded_io_async::ErrorKind::Other)
-    }
-}
-
-impl Write for Blocking {
-    async fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
-        self.0.write(buf).map_err(|_| embedded_io_async::ErrorKind::Other)
-    }
-
-    async fn flush(&mut self) -> Result<(), Self::Error> {
-        Ok(())
-    }
+    common::init(ARENA_LEN)
 }
 
 struct Outcome {
@@ -88,19 +43,8 @@ struct Outcome {
 
 /// Serves one connection from `s_client` run with `args`; echoes one line.
 fn exchange(server: &Server, args: &[&str]) -> Outcome {
-    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
-    let port = listener.local_addr().unwrap().port();
-    let mut client = Command::new("openssl")
-        .args(["s_client", "-connect", &format!("127.0.0.1:{port}"), "-CAfile"])
-        .arg(fixtures().join("device.pem"))
-        .args(["-verify_return_error", "-servername", "mbio-test.local"])
-        .args(args)
-        .current_dir(fixtures())
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("openssl s_client (scripts/setup installs openssl)");
+    let (listener, port) = listener();
+    let mut client = s_client(port, args);
     let mut stdin = client.stdin.take().unwrap();
     let writer = thread::spawn(move || {
         // The line goes once the handshake is done: s_client sends stdin then.
