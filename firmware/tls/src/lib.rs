@@ -6,6 +6,7 @@
 //! - [`Server`]: a configuration made from DER credentials: the device's
 //!   certificate and P-256 key, and optionally the CA that clients'
 //!   certificates must chain to (Modbus/TCP Security) .
+//! - [`identity`]: the device's own P-256 key and self-signed certificate.
 //! - [`Session`]: one connection: [`Session::handshake`], then
 //!   `embedded-io-async` `Read` and `Write`, [`Session::peer_certificate`].
 //!
@@ -16,6 +17,7 @@
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::indexing_slicing))]
 
 pub mod arena;
+pub mod identity;
 pub mod rng;
 mod server;
 mod session;
@@ -48,6 +50,8 @@ pub enum Error {
     Internal,
     /// [`init`] was not called, or the entropy source failed.
     NoEntropy,
+    /// A device name a certificate cannot carry (the settings' rule).
+    BadName,
 }
 
 impl Error {
@@ -76,6 +80,7 @@ impl fmt::Display for Error {
             Self::Io(kind) => write!(f, "stream error: {kind:?}"),
             Self::Internal => f.write_str("internal length error"),
             Self::NoEntropy => f.write_str("no entropy"),
+            Self::BadName => f.write_str("not a device name"),
         }
     }
 }

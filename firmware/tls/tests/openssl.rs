@@ -155,3 +155,63 @@ fn bad_credentials_are_refused_and_leave_the_arena_as_it_was() {
     assert_eq!(made(&other, &key), tls::Error::KeyMismatch, "the CA's certificate with the device's key");
     assert_eq!(tls::arena::usage().used, before);
 }
+
+#[test]
+fn a_generated_key_and_self_signed_certificate_serve_and_name_the_device() {
+    let _serial = init();
+    let key = tls::identity::generate_key().unwrap();
+    assert_ne!(key, tls::identity::generate_key().unwrap(), "two keys, two draws");
+    let names = tls::identity::Names { name: "cell-4", address: Some([198, 18, 0, 2]) };
+    let mut buf = [0u8; tls::identity::MAX_SELF_SIGNED_LEN];
+    let der = tls::identity::self_signed(&key, &names, &[0x01, 0x02], &mut buf).unwrap().to_vec();
+
+    let parsed = certificate::Certificate::parse(&der).unwrap();
+    assert_eq!(certificate::common_name(parsed.subject), Some("cell-4"));
+    assert_eq!(parsed.subject, parsed.issuer, "self-signed");
+    let mut dns: Vec<_> = parsed.dns_names().collect();
+    dns.sort_unstable();
+    assert_eq!(dns, ["cell-4", "cell-4.local"]);
+    assert_eq!(parsed.not_after.to_string(), "9999-12-31T23:59:59Z");
+
+    // openssl reads it, finds the address among its names, and trusts it
+    // as its own anchor in a handshake with the device's key.
+    let dir = tempfile::tempdir().unwrap();
+    let pem = dir.path().join("device.pem");
+    let der_path = dir.path().join("device.der");
+    std::fs::write(&der_path, &der).unwrap();
+    let converted = std::process::Command::new("openssl")
+        .args(["x509", "-inform", "der", "-noout", "-text", "-in"])
+        .arg(&der_path)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&converted.stdout);
+    assert!(text.contains("IP Address:198.18.0.2") && text.contains("DNS:cell-4.local"), "{text}");
+    std::process::Command::new("openssl")
+        .args(["x509", "-inform", "der", "-in"])
+        .arg(&der_path)
+        .arg("-out")
+        .arg(&pem)
+        .status()
+        .unwrap();
+
+    let key_der = tls::identity::key_der(&key);
+    let server = Server::new(&Credentials { certificate: &der, key: &key_der, client_ca: None }).unwrap();
+    let (listener, port) = listener();
+    let mut client = std::process::Command::new("openssl")
+        .args(["s_client", "-connect", &format!("127.0.0.1:{port}"), "-verify_return_error", "-verify_ip"])
+        .arg("198.18.0.2")
+        .arg("-CAfile")
+        .arg(&pem)
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let (socket, _) = listener.accept().unwrap();
+    let mut session = Session::new(&server, Blocking(socket)).unwrap();
+    embassy_futures::block_on(session.handshake()).unwrap();
+    drop(session);
+    drop(client.stdin.take());
+    let output = client.wait_with_output().unwrap();
+    assert!(String::from_utf8_lossy(&output.stdout).contains("Verify return code: 0 (ok)"));
+}
