@@ -18,7 +18,7 @@ pub const MAX_BUSY_POLL_US: u64 = 1_000;
 /// The first lines of the usage text; the settings follow, from the table.
 const USAGE_HEAD: &str = "\
 usage: hal-sim --tap NAME [--control PATH] [--robot demo|idle] [--state FILE] [--http-port N]
-               [--mac MAC] [--busy-poll US] [SETTING VALUE]...
+               [--mac MAC] [--client-ca FILE] [--busy-poll US] [SETTING VALUE]...
 
   --tap NAME            the TAP interface to run on (made beforehand with
                         `ip tuntap add dev NAME mode tap user $USER`, or by hal-sim as root)
@@ -30,6 +30,8 @@ usage: hal-sim --tap NAME [--control PATH] [--robot demo|idle] [--state FILE] [-
   --mac MAC             the device's MAC, six hex bytes such as 02:4d:42:53:49:4d (unicast; the
                         default), so that several hal-sims share a network; the default name
                         (mbio- and its last 3 bytes) follows it
+  --client-ca FILE      the CA (PEM or DER) that Modbus/TCP Security clients' certificates must
+                        chain to; without it, port 802 stays closed
   --busy-poll US        when idle, poll the TAP without sleeping for up to US microseconds
                         (0-1000) before each sleep: lower latency for a busy client, for a CPU
                         kept busy meanwhile (default 0: off)
@@ -77,6 +79,8 @@ pub struct Options {
     pub state: Option<PathBuf>,
     /// The device's MAC.
     pub mac: [u8; 6],
+    /// The client CA's file (Modbus/TCP Security).
+    pub client_ca: Option<PathBuf>,
     /// The HTTP API's port (`None`: no HTTP).
     pub http_port: Option<u16>,
     /// How long the loop polls without blocking before it sleeps, in
@@ -120,6 +124,7 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
     let mut http_port = None;
     let mut busy_poll = None;
     let mut mac = None;
+    let mut client_ca = None;
     let mut settings = factory_defaults();
     let mut given: Vec<Field> = Vec::new();
 
@@ -142,6 +147,7 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
             "--http-port" => Target::Own(&mut http_port),
             "--busy-poll" => Target::Own(&mut busy_poll),
             "--mac" => Target::Own(&mut mac),
+            "--client-ca" => Target::Own(&mut client_ca),
             _ => match flag.strip_prefix("--").and_then(|name| Field::ALL.iter().find(|f| f.flag() == name)) {
                 Some(&field) => Target::Setting(field),
                 None if flag.starts_with('-') => return error(format!("unknown option `{flag}`")),
@@ -216,6 +222,7 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
         robot,
         state: state.map(PathBuf::from),
         mac,
+        client_ca: client_ca.map(PathBuf::from),
         http_port,
         busy_poll_us,
         settings,

@@ -6,6 +6,7 @@ mod cli;
 mod control;
 mod platform;
 mod runtime;
+mod secure;
 mod sim;
 mod state;
 mod tap;
@@ -98,12 +99,27 @@ fn main() -> ExitCode {
         }
     };
 
-    run(options, device, control, flash, args)
+    let client_ca = match options.client_ca.as_deref().map(secure::read_client_ca).transpose() {
+        Ok(client_ca) => client_ca,
+        Err(e) => {
+            eprintln!("hal-sim: --client-ca {e}");
+            return ExitCode::from(EXIT_UNAVAILABLE);
+        }
+    };
+
+    run(options, device, control, flash, args, client_ca)
 }
 
 /// Loads the saved settings, builds the stack, the board and the API over
 /// them, and runs the runtime's loop forever.
-fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>, flash: Flash, args: Vec<OsString>) -> ! {
+fn run(
+    options: Options,
+    device: TunTapDevice,
+    control: Option<UnixListener>,
+    flash: Flash,
+    args: Vec<OsString>,
+    client_ca: Option<Vec<u8>>,
+) -> ! {
     let mut store = match Store::new(flash, state::RANGE) {
         Ok(store) => store,
         Err(e) => {
@@ -126,6 +142,8 @@ fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>, fl
     let (stack, runner, settings) =
         program::network(device, settings, options.mac, RandomState::new().build_hasher().finish());
     let outputs: &'static OutputLatch = Box::leak(Box::new(OutputLatch::new()));
+    let address = settings.network.address.map(|cidr| cidr.address);
+    let tls = secure::configure(settings, options.mac, address, client_ca.as_deref());
     let program = program::build(Board {
         stack,
         settings,
@@ -136,6 +154,7 @@ fn run(options: Options, device: TunTapDevice, control: Option<UnixListener>, fl
         loaded,
         platform: SimPlatform::new(stack, settings.network.mode, options.mac),
         http_port: options.http_port,
+        tls,
     });
     let board: &'static SimBoard =
         Box::leak(Box::new(SimBoard::new(program.device, outputs, SimRobot::new(options.robot))));
@@ -193,13 +212,20 @@ fn start(
         spawner.spawn(control::accept_task(spawner, listener, board, program.control)?);
     }
     spawner.spawn(platform::reboot_task(args)?);
-    spawner.spawn(ready_task(program.stack, program.server, options)?);
+    let tls_open = program.tls.is_some() && program.settings.tls.modbus;
+    spawner.spawn(ready_task(program.stack, program.server, program.settings, tls_open, options)?);
     Ok(())
 }
 
 /// Prints the one line that says hal-sim is ready, once the address is up.
 #[embassy_executor::task]
-async fn ready_task(stack: Stack<'static>, server: &'static ModbusServer, options: &'static Options) {
+async fn ready_task(
+    stack: Stack<'static>,
+    server: &'static ModbusServer,
+    settings: &'static Settings,
+    tls_open: bool,
+    options: &'static Options,
+) {
     stack.wait_config_up().await;
     let config = server.config();
     log::info!(
@@ -220,7 +246,16 @@ async fn ready_task(stack: Stack<'static>, server: &'static ModbusServer, option
     }
     let address = stack.config_v4().map(|v4| v4.address.address());
     let address = address.map_or_else(|| "?".to_owned(), |address| address.to_string());
-    println!("hal-sim: modbus tcp listening on {address}:{} (tap {})", config.port, options.tap);
+    if settings.tls.plain_modbus {
+        println!("hal-sim: modbus tcp listening on {address}:{} (tap {})", config.port, options.tap);
+    }
+    if tls_open {
+        println!(
+            "hal-sim: modbus/tcp security listening on {address}:{} (tap {})",
+            adapter::server::secure::SECURE_PORT,
+            options.tap
+        );
+    }
     let _ = std::io::stdout().flush();
 }
 

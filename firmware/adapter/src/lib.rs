@@ -14,6 +14,9 @@
 //! - `http` (feature `http`): the HTTP JSON API, a front end of the settings service.
 //! - `robot_link` (feature `robot-link`): the robot link, a client of the robot controller's own Modbus TCP server.
 //! - `mdns` (feature `mdns`, the `mdns` crate): the mDNS responder: `NAME.local` and the device's services.
+//! - `server::secure` (feature `tls`): Modbus/TCP Security on port 802, over
+//!   the `tls` crate (Mbed TLS in a fixed arena), each client's rights from its
+//!   certificate's role.
 //! - `update` (feature `update`): firmware update: a signed image streamed into
 //!   the DFU partition, checked, and the bootloader's swap armed; confirmation.
 //!
@@ -46,6 +49,10 @@ pub mod update;
 
 /// The wire codec this core speaks (its own crate: no map, no async).
 pub use modbus;
+
+/// The TLS engine (its own crate; feature `tls`): Mbed TLS in a fixed arena.
+#[cfg(feature = "tls")]
+pub use tls;
 
 /// The mDNS responder (its own crate; feature `mdns`).
 #[cfg(feature = "mdns")]

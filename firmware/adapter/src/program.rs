@@ -4,9 +4,10 @@
 //! what their platform has.
 
 /// Sockets a program's stack holds with this build's features: the Modbus
-/// listeners, DHCP's, the HTTP listeners (`http`), mDNS's (`mdns`) and the robot
-/// link's client (`robot-link`).
-pub const STACK_SOCKETS: usize = crate::server::SOCKET_POOL + 1 + HTTP_SOCKETS + MDNS_SOCKETS + LINK_SOCKETS;
+/// listeners (and with `tls` those of port 802), DHCP's, the HTTP listeners
+/// (`http`), mDNS's (`mdns`) and the robot link's client (`robot-link`).
+pub const STACK_SOCKETS: usize =
+    crate::server::SOCKET_POOL + crate::server::SECURE_POOL + 1 + HTTP_SOCKETS + MDNS_SOCKETS + LINK_SOCKETS;
 #[cfg(feature = "http")]
 const HTTP_SOCKETS: usize = crate::http::MAX_HTTP_CONNECTIONS;
 #[cfg(not(feature = "http"))]
@@ -104,6 +105,10 @@ macro_rules! program {
             /// The HTTP API's port; `None`: no API (its service still runs).
             #[cfg(feature = "http")]
             pub http_port: ::core::option::Option<u16>,
+            /// Modbus/TCP Security's configuration: the device's credentials
+            /// and the client CA; `None`: port 802 stays closed.
+            #[cfg(feature = "tls")]
+            pub tls: ::core::option::Option<&'static $crate::tls::Server>,
         }
 
         /// What the program's tasks share, all of it for the life of the program.
@@ -121,6 +126,8 @@ macro_rules! program {
             pub control: &'static Control,
             #[cfg(feature = "http")]
             pub api: ::core::option::Option<&'static Api>,
+            #[cfg(feature = "tls")]
+            pub tls: ::core::option::Option<&'static $crate::tls::Server>,
         }
 
         pub mod program {
@@ -203,6 +210,8 @@ macro_rules! program {
                     control,
                     #[cfg(feature = "http")]
                     api,
+                    #[cfg(feature = "tls")]
+                    tls: board.tls,
                 }
             }
 
@@ -241,8 +250,20 @@ macro_rules! program {
                 spawner.spawn(tasks::refresh(device, inputs, robot)?);
                 #[cfg(feature = "robot-link")]
                 spawner.spawn(tasks::robot_link(stack, device)?);
-                for slot in 0..$crate::server::SOCKET_POOL {
-                    spawner.spawn(tasks::modbus(stack, server, slot)?);
+                #[cfg(feature = "tls")]
+                let plain = settings.tls.plain_modbus;
+                #[cfg(not(feature = "tls"))]
+                let plain = true;
+                if plain {
+                    for slot in 0..$crate::server::SOCKET_POOL {
+                        spawner.spawn(tasks::modbus(stack, server, slot)?);
+                    }
+                }
+                #[cfg(feature = "tls")]
+                if let Some(tls) = program.tls.filter(|_| settings.tls.modbus) {
+                    for slot in $crate::server::SOCKET_POOL..$crate::server::SLOT_COUNT {
+                        spawner.spawn(tasks::modbus_secure(stack, server, tls, slot)?);
+                    }
                 }
                 #[cfg(feature = "http")]
                 if let Some(api) = program.api {
@@ -304,6 +325,18 @@ macro_rules! program {
                     slot: $crate::server::SlotId,
                 ) -> ! {
                     $crate::server::listen(stack, server, slot).await
+                }
+
+                /// One Modbus/TCP Security listener per socket on port 802.
+                #[cfg(feature = "tls")]
+                #[::embassy_executor::task(pool_size = $crate::server::SECURE_POOL)]
+                pub async fn modbus_secure(
+                    stack: Stack<'static>,
+                    server: &'static ModbusServer,
+                    tls: &'static $crate::tls::Server,
+                    slot: $crate::server::SlotId,
+                ) -> ! {
+                    $crate::server::secure::listen_secure(stack, server, tls, slot).await
                 }
 
                 /// One HTTP listener per connection served at once.

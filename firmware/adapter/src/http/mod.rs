@@ -52,7 +52,7 @@ pub use response::Status;
 use self::api::Api;
 use self::json::Out;
 use crate::control::{Controller, Platform};
-use crate::server::SOCKET_POOL;
+use crate::server::SLOT_COUNT;
 
 /// The HTTP port (hal-sim: `--http-port`), which `modbus.port` may not take.
 pub const HTTP_PORT: u16 = 80;
@@ -78,7 +78,7 @@ pub const REQUEST_BUFFER_LEN: usize = MAX_HEAD_LEN + MAX_BODY_LEN;
 /// session with its peer's address) and a 400 listing every setting (about
 /// 1250 bytes) fit, which a test checks.
 pub const MAX_RESPONSE_LEN: usize = {
-    let status = 960 + 100 * SOCKET_POOL;
+    let status = 960 + 100 * SLOT_COUNT;
     if status > 1344 { status } else { 1344 }
 };
 

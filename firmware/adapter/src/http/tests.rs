@@ -72,7 +72,7 @@ fn the_status_document_shows_the_device() {
         status["connections"],
         json!([{"peer": "198.18.0.1", "requests": null, "idle_ms": 3000, "read_only": true}])
     );
-    assert_eq!(status["counters"].as_object().unwrap().len(), 15);
+    assert_eq!(status["counters"].as_object().unwrap().len(), 18);
     assert_eq!(status["counters"]["requests"], 0);
     assert_eq!(status["watchdog"], json!({"timeout_ms": 0, "tripped": false}));
     assert_eq!(status["storage"], json!({"ok": true, "records": 1, "erases": 0}), "the owner's password alone");
@@ -759,10 +759,10 @@ fn the_largest_documents_fit_the_response_buffer() {
     let http = api();
     let control = http.control();
     // Every slot open, the counters and the clock at their widest.
-    for slot in 0..crate::server::SOCKET_POOL {
+    for slot in 0..crate::server::SLOT_COUNT {
         control.server().slots().open(
             slot,
-            crate::server::SOCKET_POOL,
+            crate::server::SLOT_COUNT,
             Instant::now(),
             [198, 18, 0, 1],
             Rights::ReadWrite,
@@ -787,7 +787,7 @@ fn the_largest_documents_fit_the_response_buffer() {
     clock.advance(Duration::from_secs(u64::from(u32::MAX)));
     let status = get(http, &clock, "/api/status");
     assert_eq!(status.status, 200);
-    assert_eq!(status.json()["connections"].as_array().unwrap().len(), crate::server::SOCKET_POOL);
+    assert_eq!(status.json()["connections"].as_array().unwrap().len(), crate::server::SLOT_COUNT);
     assert!(status.body.len() <= MAX_RESPONSE_LEN - 64, "{} bytes: keep a margin", status.body.len());
     // The telemetry at its widest: every value -3276.8 or -32768 or 65535.
     control.server().service().update(|image| {

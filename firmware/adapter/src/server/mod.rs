@@ -8,6 +8,8 @@
 pub mod handler;
 pub mod identity;
 mod listener;
+#[cfg(feature = "tls")]
+pub mod secure;
 mod session;
 mod slots;
 mod stats;
@@ -18,7 +20,7 @@ use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_time::Duration;
 
-pub use crate::access::{Access, AllowList, Network, Rights};
+pub use crate::access::{Access, AllowList, Network, Rights, Roles};
 pub use handler::{Context, Outcome, Policy};
 pub use identity::Identity;
 pub use listener::{CLOSE_TIMEOUT, SOCKET_RX_LEN, SOCKET_TX_LEN, listen};
@@ -55,6 +57,16 @@ pub const SPARE_SOCKETS: usize = 2;
 /// Sockets (and listener tasks): [`MAX_CONNECTIONS`] + [`SPARE_SOCKETS`].
 pub const SOCKET_POOL: usize = MAX_CONNECTIONS + SPARE_SOCKETS;
 
+/// Modbus/TCP Security's sockets (and listener tasks) on port 802 (`tls`).
+#[cfg(feature = "tls")]
+pub const SECURE_POOL: usize = secure::SECURE_POOL;
+#[cfg(not(feature = "tls"))]
+pub const SECURE_POOL: usize = 0;
+
+/// Session slots: the plain listeners' (`0..SOCKET_POOL`), then the
+/// secure ones' (`SOCKET_POOL..SLOT_COUNT`).
+pub const SLOT_COUNT: usize = SOCKET_POOL + SECURE_POOL;
+
 /// Default for [`Config::idle_timeout`].
 pub const IDLE_TIMEOUT: Duration = Duration::from_secs(60);
 /// Default for [`Config::frame_timeout`].
@@ -79,6 +91,8 @@ pub struct Config {
     /// The device name, Read Device Identification's UserApplicationName
     /// (made from the settings with the MAC's default when none is set).
     pub name: Name,
+    /// Modbus/TCP Security's roles and the rights each gives (`tls`).
+    pub roles: Roles,
 }
 
 impl Config {
@@ -92,6 +106,7 @@ impl Config {
         frame_timeout: FRAME_TIMEOUT,
         access: Access::OPEN,
         name: Name::UNSET,
+        roles: Roles::DEFAULT,
     };
 }
 
@@ -150,8 +165,12 @@ impl<'a, S: Service> Server<'a, S> {
     /// reboot.
     pub fn set_config(&self, config: Config) {
         let config = Self::clamped(config);
-        self.config.lock(|cell| *cell.borrow_mut() = config);
-        let closed = self.slots.enforce(&config.access, config.max_connections);
+        let old_roles = self.config.lock(|cell| core::mem::replace(&mut *cell.borrow_mut(), config).roles);
+        let mut closed = self.slots.enforce(&config.access, config.max_connections);
+        // A secure session's rights came from its role: new roles, new sessions.
+        if config.roles != old_roles {
+            closed += self.slots.evict_range(SOCKET_POOL..SLOT_COUNT);
+        }
         if closed > 0 {
             info!("new configuration: closing {} sessions", closed);
         }

@@ -9,9 +9,9 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::Instant;
 
-use super::{Access, Rights, SOCKET_POOL};
+use super::{Access, Rights, SLOT_COUNT};
 
-/// Which slot (and listener task) a session runs in: `0..SOCKET_POOL`.
+/// Which slot (and listener task) a session runs in: `0..SLOT_COUNT`.
 pub type SlotId = usize;
 
 /// An open session: its last request, its client's address and what the
@@ -37,8 +37,8 @@ pub struct Session {
 
 /// One entry per socket while a session is open.
 pub struct Slots {
-    active: Mutex<CriticalSectionRawMutex, RefCell<[Option<Entry>; SOCKET_POOL]>>,
-    evict: [Signal<CriticalSectionRawMutex, ()>; SOCKET_POOL],
+    active: Mutex<CriticalSectionRawMutex, RefCell<[Option<Entry>; SLOT_COUNT]>>,
+    evict: [Signal<CriticalSectionRawMutex, ()>; SLOT_COUNT],
 }
 
 impl core::fmt::Debug for Slots {
@@ -55,7 +55,7 @@ impl Default for Slots {
 
 impl Slots {
     pub const fn new() -> Self {
-        Self { active: Mutex::new(RefCell::new([None; SOCKET_POOL])), evict: [const { Signal::new() }; SOCKET_POOL] }
+        Self { active: Mutex::new(RefCell::new([None; SLOT_COUNT])), evict: [const { Signal::new() }; SLOT_COUNT] }
     }
 
     /// Opens slot `id` for a new session from `peer` with `rights`. If that
@@ -118,7 +118,7 @@ impl Slots {
     /// outside its write list now (they may come back, read-only), and the
     /// idlest sessions beyond `max`. Returns how many were told to close.
     pub fn enforce(&self, access: &Access, max: usize) -> usize {
-        let mut closing = [false; SOCKET_POOL];
+        let mut closing = [false; SLOT_COUNT];
         self.active.lock(|active| {
             let active = active.borrow();
             let mut kept = 0;
@@ -153,6 +153,19 @@ impl Slots {
         told
     }
 
+    /// Tells the open sessions in `slots` to close. Returns how many.
+    pub fn evict_range(&self, slots: core::ops::Range<SlotId>) -> usize {
+        let open = self.active.lock(|active| active.borrow().map(|slot| slot.is_some()));
+        let mut told = 0;
+        for (id, (signal, open)) in self.evict.iter().zip(open).enumerate() {
+            if open && slots.contains(&id) {
+                signal.signal(());
+                told += 1;
+            }
+        }
+        told
+    }
+
     /// When the newest request (or connection) on any open session arrived.
     pub fn last_activity(&self) -> Option<Instant> {
         self.active.lock(|active| active.borrow().iter().flatten().map(|entry| entry.last).max())
@@ -166,7 +179,7 @@ impl Slots {
     }
 
     /// The open sessions, by slot (`None`: a listening slot).
-    pub fn sessions(&self) -> [Option<Session>; SOCKET_POOL] {
+    pub fn sessions(&self) -> [Option<Session>; SLOT_COUNT] {
         self.active.lock(|active| {
             active
                 .borrow()
@@ -263,7 +276,7 @@ mod tests {
         slots.open(1, 8, at(0), PEER, Rights::ReadWrite);
         assert_eq!((slots.rights(0), slots.rights(1)), (Rights::Read, Rights::ReadWrite));
         assert_eq!(
-            (slots.rights(2), slots.rights(SOCKET_POOL)),
+            (slots.rights(2), slots.rights(SLOT_COUNT)),
             (Rights::ReadWrite, Rights::ReadWrite),
             "no session, no restriction"
         );
@@ -295,9 +308,9 @@ mod tests {
     #[test]
     fn out_of_range_ids_are_ignored() {
         let slots = Slots::new();
-        assert_eq!(slots.open(SOCKET_POOL, 1, at(0), PEER, Rights::ReadWrite), None);
-        slots.touch(SOCKET_POOL, at(0));
-        slots.close(SOCKET_POOL);
+        assert_eq!(slots.open(SLOT_COUNT, 1, at(0), PEER, Rights::ReadWrite), None);
+        slots.touch(SLOT_COUNT, at(0));
+        slots.close(SLOT_COUNT);
         assert_eq!(slots.open_count(), 0);
     }
 }

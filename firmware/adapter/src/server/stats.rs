@@ -114,6 +114,14 @@ counters! {
     robot_errors,
     /// Robot link: times it went down (3 failed polls in a row, or no connection).
     robot_link_downs,
+    /// Modbus/TCP Security: sessions opened after a handshake (docs/tls.md).
+    tls_sessions,
+    /// Modbus/TCP Security: handshakes that failed (bad bytes, a timeout,
+    /// no room in the arena).
+    tls_failed,
+    /// Modbus/TCP Security: clients refused for their certificate (none,
+    /// not from the client CA) or its role (none, or not in `tls.roles`).
+    tls_refused,
 }
 
 impl Stats {
@@ -180,7 +188,7 @@ mod tests {
             c.to_string(),
             "requests=2 bad_protocol=0 bad_length=0 bad_function=1 bad_address=1 bad_value=1 refused_writes=1 \
              other_unit=1 evictions=0 timeouts=0 refused_connections=0 watchdog_trips=0 robot_polls=0 \
-             robot_errors=0 robot_link_downs=0"
+             robot_errors=0 robot_link_downs=0 tls_sessions=0 tls_failed=0 tls_refused=0"
         );
         let mut pairs = Vec::new();
         c.for_each(|name, value| pairs.push(format!("{name}={value}")));
@@ -211,6 +219,9 @@ mod tests {
             &stats.robot_polls,
             &stats.robot_errors,
             &stats.robot_link_downs,
+            &stats.tls_sessions,
+            &stats.tls_failed,
+            &stats.tls_refused,
         ]
         .into_iter()
         .enumerate()
@@ -219,7 +230,7 @@ mod tests {
         }
         assert!(all(&stats).iter().all(|&v| v > 0), "each counter set: {:?}", all(&stats));
         stats.clear();
-        assert_eq!(all(&stats), [0; 15]);
+        assert_eq!(all(&stats), [0; 18]);
     }
 
     #[test]

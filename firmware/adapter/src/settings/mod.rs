@@ -196,6 +196,7 @@ impl Settings {
             frame_timeout: server::FRAME_TIMEOUT,
             access: Access { connect: modbus.allow_connect, write: modbus.allow_write },
             name: self.device.name.or_default(mac),
+            roles: self.tls.roles,
         }
     }
 

@@ -1,0 +1,131 @@
+//! Modbus/TCP Security on hal-sim (port 802), through independent clients:
+//! pymodbus's `ModbusTlsClient` (tests/peers/pymodbus_tls.py) with a client
+//! certificate of each kind, and `openssl s_client`. The certificates are
+//! the tls crate's test fixtures: a plant CA (`--client-ca`), an operator's
+//! and a viewer's certificate, one without a role, and one from another CA.
+//!
+//! Needs root (a namespace), python3 with pymodbus, and openssl; fails
+//! loudly without them.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+
+use serde_json::Value;
+use system_tests::hal_sim::HalSim;
+use system_tests::netns::DEVICE_IP;
+use system_tests::update::test_dir;
+
+/// The tls crate's certificates and keys.
+fn fixtures() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/tls/tests/fixtures")
+}
+
+fn fixture(name: &str) -> String {
+    fixtures().join(name).to_str().expect("a UTF-8 path").to_owned()
+}
+
+fn require_tools() {
+    let probe = Command::new("python3").args(["-c", "import pymodbus"]).output();
+    assert!(
+        probe.as_ref().is_ok_and(|o| o.status.success()),
+        "this test needs python3 with pymodbus: `pip install pymodbus` ({probe:?})"
+    );
+    let openssl = Command::new("openssl").arg("version").output();
+    assert!(openssl.is_ok_and(|o| o.status.success()), "this test needs openssl (scripts/setup installs it)");
+}
+
+/// The device's certificate, as an operator's handshake shows it, in a
+/// file for the clients to trust.
+fn device_certificate(sim: &HalSim, dir: &Path) -> PathBuf {
+    let output = sim
+        .ns()
+        .command("openssl")
+        .args(["s_client", "-connect", &format!("{DEVICE_IP}:802"), "-showcerts"])
+        .args(["-cert", &fixture("operator.pem"), "-key", &fixture("operator.key")])
+        .stdin(Stdio::null())
+        .output()
+        .expect("openssl runs");
+    let text = String::from_utf8_lossy(&output.stdout);
+    let begin = text.find("-----BEGIN CERTIFICATE-----").unwrap_or_else(|| panic!("no certificate shown:\n{text}"));
+    let end = text[begin..].find("-----END CERTIFICATE-----").expect("a whole PEM block") + begin + 25;
+    let path = dir.join("device.pem");
+    std::fs::write(&path, format!("{}\n", &text[begin..end])).unwrap();
+    path
+}
+
+/// pymodbus with `cert`/`key` (`None`: no client certificate).
+fn pymodbus(sim: &HalSim, client: Option<(&str, &str)>, server_cert: &Path) -> Value {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("peers/pymodbus_tls.py");
+    let (cert, key) = client.map_or(("-".to_owned(), "-".to_owned()), |(c, k)| (fixture(c), fixture(k)));
+    let output = sim
+        .ns()
+        .command("python3")
+        .arg(&script)
+        .args([DEVICE_IP, "802", &cert, &key])
+        .arg(server_cert)
+        .output()
+        .expect("python3 runs");
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    serde_json::from_str(stdout.trim()).unwrap_or_else(|e| {
+        panic!("pymodbus_tls.py printed no JSON ({e}):\n{stdout}\n{}", String::from_utf8_lossy(&output.stderr))
+    })
+}
+
+#[test]
+fn roles_give_rights_on_802_and_other_clients_get_no_session() {
+    require_tools();
+    let sim = HalSim::start(&["--robot", "idle", "--client-ca", &fixture("client-ca.pem")]);
+    let dir = test_dir("hal-sim-tls");
+    let server_cert = device_certificate(&sim, &dir);
+
+    // An operator reads and writes, over a verified server certificate.
+    let operator = pymodbus(&sim, Some(("operator.pem", "operator.key")), &server_cert);
+    assert_eq!(operator["connected"], true, "{operator}");
+    assert_eq!(operator["read"].as_array().map(Vec::len), Some(4), "{operator}");
+    assert_eq!(operator["write"], "ok", "{operator}");
+
+    // A viewer reads; its write gets exception 01 (Illegal Function).
+    let viewer = pymodbus(&sim, Some(("viewer.pem", "viewer.key")), &server_cert);
+    assert_eq!(viewer["read"].as_array().map(Vec::len), Some(4), "{viewer}");
+    assert_eq!(viewer["write"], serde_json::json!({"exception": 1}), "{viewer}");
+
+    // No role, another CA's certificate, no certificate: no session, no answer.
+    for (client, what) in [
+        (Some(("norole.pem", "norole.key")), "no role"),
+        (Some(("stranger.pem", "stranger.key")), "another CA"),
+        (None, "no certificate"),
+    ] {
+        let refused = pymodbus(&sim, client, &server_cert);
+        assert!(!refused["read"].is_array(), "{what}: {refused}");
+        assert_ne!(refused["write"], "ok", "{what}: {refused}");
+    }
+
+    // The counters saw it: the operator's and the viewer's sessions (and
+    // the handshake that fetched the certificate), the three refused.
+    let status = sim.get("/api/status").json();
+    let counters = &status["counters"];
+    assert_eq!(counters["tls_sessions"], 3, "{counters}");
+    assert_eq!(counters["tls_refused"], 3, "{counters}");
+    assert_eq!(counters["refused_writes"], 1, "the viewer's write: {counters}");
+
+    // Plain Modbus on 502 is served beside it.
+    let log = sim.log();
+    assert!(log.contains("modbus/tcp security") || log.contains("secure slot"), "{log}");
+}
+
+#[test]
+fn without_a_client_ca_port_802_stays_closed() {
+    require_tools();
+    let sim = HalSim::start(&["--robot", "idle"]);
+    let output = sim
+        .ns()
+        .command("openssl")
+        .args(["s_client", "-connect", &format!("{DEVICE_IP}:802")])
+        .args(["-cert", &fixture("operator.pem"), "-key", &fixture("operator.key")])
+        .stdin(Stdio::null())
+        .output()
+        .expect("openssl runs");
+    assert!(!output.status.success(), "a handshake on 802 without a client CA");
+    assert!(String::from_utf8_lossy(&output.stderr).contains("onnection refused"), "{output:?}");
+    assert!(sim.log().contains("no client CA"), "{}", sim.log());
+}
