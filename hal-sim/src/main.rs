@@ -128,7 +128,7 @@ fn run(
         }
     };
     // The command line's settings are the factory settings; saved ones override them.
-    let loaded = embassy_futures::block_on(store.load(&options.settings));
+    let mut loaded = embassy_futures::block_on(store.load(&options.settings));
     match &options.state {
         Some(path) => log::info!("settings: kept in {} ({:?})", path.display(), loaded.status),
         None => log::info!("settings: kept in memory (no --state): changes last until hal-sim exits"),
@@ -136,14 +136,18 @@ fn run(
     if let Some(error) = loaded.error {
         log::warn!("settings storage: {error}");
     }
+    let settings = running_settings(&loaded.settings, &options);
+    // The TLS identity, made and saved at once if it is new (before the
+    // executor runs, so without the flash's time).
+    let address = settings.network.address.map(|cidr| cidr.address);
+    let tls = secure::configure(&mut store, &settings, options.mac, address, client_ca.as_deref());
+    // What the store holds now, the identity's records included.
+    loaded.status = store.status();
     // Saves from now on run in the executor and take the flash's time.
     store.flash().start_timing();
-    let settings = running_settings(&loaded.settings, &options);
     let (stack, runner, settings) =
         program::network(device, settings, options.mac, RandomState::new().build_hasher().finish());
     let outputs: &'static OutputLatch = Box::leak(Box::new(OutputLatch::new()));
-    let address = settings.network.address.map(|cidr| cidr.address);
-    let tls = secure::configure(settings, options.mac, address, client_ca.as_deref());
     let program = program::build(Board {
         stack,
         settings,

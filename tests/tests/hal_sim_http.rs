@@ -50,7 +50,8 @@ fn status_and_settings_have_their_shape() {
     assert!(status["connections"].as_array().is_some_and(Vec::is_empty), "{status}");
     assert!(status["counters"]["requests"].is_u64(), "{status}");
     assert_eq!(status["watchdog"], json!({"timeout_ms": 0, "tripped": false}));
-    assert_eq!(status["storage"], json!({"ok": true, "records": 0, "erases": 0}));
+    // The device's TLS key and self-signed certificate, made at its first start (docs/tls.md).
+    assert_eq!(status["storage"], json!({"ok": true, "records": 2, "erases": 0}));
     assert_eq!(status["admin"], json!({"password_set": false, "first_password_open": true}));
 
     let settings = ok(sim.get("/api/settings"));
@@ -196,7 +197,8 @@ fn settings_and_password_survive_a_restart_and_a_reboot() {
     assert_eq!(settings["modbus"]["port"], 502);
     assert_eq!(settings["admin"]["password_set"], false);
     let status = ok(sim.get("/api/status"));
-    assert_eq!(status["storage"], json!({"ok": true, "records": 0, "erases": 0}));
+    // Erased, then a new TLS key and certificate made at the start after.
+    assert_eq!(status["storage"], json!({"ok": true, "records": 2, "erases": 0}));
     assert_eq!(status["admin"], json!({"password_set": false, "first_password_open": true}), "new again");
     assert_eq!(sim.put("/api/settings", r#"{"modbus": {"unit_id": 7}}"#, Some(PASSWORD)).status, 403);
 }
@@ -373,7 +375,11 @@ fn a_hostile_page_s_requests_are_refused_and_change_nothing() {
     assert_eq!(settings["modbus"]["unit_id"], "any");
     assert_eq!(settings["modbus"]["allow_write"], "any");
     assert_eq!(settings["admin"], json!({"password_set": true}));
-    assert_eq!(ok(sim.get("/api/status"))["storage"]["records"], 1, "nothing saved but the password");
+    assert_eq!(
+        ok(sim.get("/api/status"))["storage"]["records"],
+        3,
+        "nothing saved but the password (and the TLS key and certificate made at the start)"
+    );
 
     // The fields every response carries, the page's and a refusal's alike.
     for args in [&["-H", "Accept-Encoding: gzip"][..], &["-H", "Host: evil.example"][..]] {

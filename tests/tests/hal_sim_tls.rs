@@ -129,3 +129,63 @@ fn without_a_client_ca_port_802_stays_closed() {
     assert!(String::from_utf8_lossy(&output.stderr).contains("onnection refused"), "{output:?}");
     assert!(sim.log().contains("no client CA"), "{}", sim.log());
 }
+
+/// The client CA installed through the API (and removed), kept in the
+/// store across a restart; the device's certificate and key kept too.
+#[test]
+fn a_client_ca_installed_through_the_api_opens_802_after_a_restart() {
+    require_tools();
+    let dir = test_dir("hal-sim-tls-api");
+    let state = dir.join("hal-sim.state");
+    let _ = std::fs::remove_file(&state);
+    let mut sim = HalSim::start_with(Some(&state), 80, &["--robot", "idle"]);
+    let password = sim.claim();
+
+    // A new device: its own self-signed certificate, no client CA.
+    let tls = sim.get("/api/tls").json();
+    let device = &tls["device"];
+    assert_eq!(device["origin"], "self-signed", "{tls}");
+    assert_eq!(device["subject"], "mbio-53494d", "{tls}");
+    assert_eq!(device["ip"], serde_json::json!([DEVICE_IP]), "{tls}");
+    assert!(tls["client_ca"].is_null(), "{tls}");
+    let fingerprint = device["sha256"].as_str().unwrap().to_owned();
+    assert_eq!(fingerprint.len(), 64, "{tls}");
+    assert!(!tls.to_string().to_lowercase().contains("private"), "no key shown: {tls}");
+
+    // Refused whole: not a CA, another curve's CA, garbage, no password.
+    let pem = |name: &str| std::fs::read_to_string(fixtures().join(name)).unwrap();
+    let body = |pem: &str| serde_json::json!({ "certificate": pem }).to_string();
+    for (certificate, why) in [
+        (pem("operator.pem"), "not a CA"),
+        ("-----BEGIN CERTIFICATE-----\nAAAA\n-----END CERTIFICATE-----\n".to_owned(), "garbage"),
+    ] {
+        let reply = sim.put("/api/tls/client-ca", &body(&certificate), Some(password));
+        assert_eq!(reply.status, 400, "{why}: {}", reply.body);
+        assert!(reply.json()["errors"]["certificate"].is_string(), "{why}: {}", reply.body);
+    }
+    let unauthenticated = sim.put("/api/tls/client-ca", &body(&pem("client-ca.pem")), None);
+    assert_eq!(unauthenticated.status, 401, "{}", unauthenticated.body);
+    assert!(sim.get("/api/tls").json()["client_ca"].is_null(), "nothing saved");
+
+    // Installed: shown at once, in force after a restart.
+    let reply = sim.put("/api/tls/client-ca", &body(&pem("client-ca.pem")), Some(password));
+    assert_eq!(reply.status, 200, "{}", reply.body);
+    assert_eq!(reply.json()["client_ca"]["subject"], "Plant CA", "{}", reply.body);
+    sim.restart();
+    let tls = sim.get("/api/tls").json();
+    assert_eq!(tls["device"]["sha256"], fingerprint.as_str(), "the same certificate after a restart: {tls}");
+    let server_cert = device_certificate(&sim, &dir);
+    let operator = pymodbus(&sim, Some(("operator.pem", "operator.key")), &server_cert);
+    assert_eq!(operator["write"], "ok", "{operator}");
+
+    // Removed: 802 closed again after a restart.
+    let reply = sim.http(
+        "/api/tls/client-ca",
+        &["-X", "DELETE", "-H", "Content-Type: application/json", "-u", &format!("admin:{password}")],
+    );
+    assert_eq!(reply.status, 200, "{}", reply.body);
+    assert!(reply.json()["client_ca"].is_null(), "{}", reply.body);
+    sim.restart();
+    let operator = pymodbus(&sim, Some(("operator.pem", "operator.key")), &server_cert);
+    assert!(!operator["read"].is_array(), "802 serves no one without a CA: {operator}");
+}

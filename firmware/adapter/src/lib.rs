@@ -14,6 +14,8 @@
 //! - `http` (feature `http`): the HTTP JSON API, a front end of the settings service.
 //! - `robot_link` (feature `robot-link`): the robot link, a client of the robot controller's own Modbus TCP server.
 //! - `mdns` (feature `mdns`, the `mdns` crate): the mDNS responder: `NAME.local` and the device's services.
+//! - `identity` (feature `tls`): the device's TLS key, its certificate and the
+//!   client CA, kept in the store.
 //! - `server::secure` (feature `tls`): Modbus/TCP Security on port 802, over
 //!   the `tls` crate (Mbed TLS in a fixed arena), each client's rights from its
 //!   certificate's role.
@@ -34,6 +36,8 @@ pub mod cpu_load;
 pub mod device;
 #[cfg(feature = "http")]
 pub mod http;
+#[cfg(feature = "tls")]
+pub mod identity;
 pub mod map;
 pub mod name;
 pub mod net;

@@ -36,6 +36,12 @@ pub const ROLE_OID: &[u8] = &[0x2b, 0x06, 0x01, 0x04, 0x01, 0x83, 0x89, 0x0c, 0x
 pub const COMMON_NAME_OID: &[u8] = &[0x55, 0x04, 0x03];
 /// id-ce-subjectAltName, 2.5.29.17.
 pub const SUBJECT_ALT_NAME_OID: &[u8] = &[0x55, 0x1d, 0x11];
+/// id-ce-basicConstraints, 2.5.29.19.
+pub const BASIC_CONSTRAINTS_OID: &[u8] = &[0x55, 0x1d, 0x13];
+/// id-ecPublicKey, 1.2.840.10045.2.1.
+const EC_PUBLIC_KEY_OID: &[u8] = &[0x2a, 0x86, 0x48, 0xce, 0x3d, 0x02, 0x01];
+/// prime256v1 (P-256), 1.2.840.10045.3.1.7.
+const P256_OID: &[u8] = &[0x2a, 0x86, 0x48, 0xce, 0x3d, 0x03, 0x01, 0x07];
 
 /// Why bytes are not a certificate this crate reads.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -199,6 +205,52 @@ impl<'a> Certificate<'a> {
                     && let Ok(text) = core::str::from_utf8(name.value)
                 {
                     return Some(text);
+                }
+            }
+        })
+    }
+}
+
+impl<'a> Certificate<'a> {
+    /// Whether the basic constraints extension says it is a CA (RFC 5280
+    /// 4.2.1.9: `cA` TRUE); without the extension, it is not.
+    pub fn is_ca(&self) -> bool {
+        let Some(value) = self.extension(BASIC_CONSTRAINTS_OID) else { return false };
+        let mut reader = Reader::new(value);
+        let Ok(constraints) = reader.expect(tag::SEQUENCE) else { return false };
+        let mut fields = Reader::new(constraints.value);
+        matches!(fields.optional(tag::BOOLEAN), Ok(Some(Tlv { value: [0xff], .. })))
+    }
+
+    /// Whether its public key is an elliptic-curve key on P-256.
+    pub fn has_p256_key(&self) -> bool {
+        let mut outer = Reader::new(self.public_key_info);
+        let Ok(info) = outer.expect(tag::SEQUENCE) else { return false };
+        let mut fields = Reader::new(info.value);
+        let Ok(algorithm) = fields.expect(tag::SEQUENCE) else { return false };
+        let mut ids = Reader::new(algorithm.value);
+        let (Ok(kind), Ok(curve)) = (ids.expect(tag::OID), ids.expect(tag::OID)) else { return false };
+        kind.value == EC_PUBLIC_KEY_OID && curve.value == P256_OID
+    }
+
+    /// The IPv4 addresses of the subject alternative name extension, in
+    /// order (IPv6 and other kinds of name are skipped).
+    pub fn ipv4_addresses(&self) -> impl Iterator<Item = [u8; 4]> + 'a {
+        let names = self.extension(SUBJECT_ALT_NAME_OID).and_then(|value| {
+            let mut reader = Reader::new(value);
+            let list = reader.expect(tag::SEQUENCE).ok()?;
+            reader.finish().ok()?;
+            Some(list.value)
+        });
+        let mut reader = Reader::new(names.unwrap_or(&[]));
+        core::iter::from_fn(move || {
+            loop {
+                let name = reader.read().ok()?;
+                // iPAddress [7], an OCTET STRING: 4 bytes for IPv4.
+                if name.tag == 0x87
+                    && let Ok(address) = <[u8; 4]>::try_from(name.value)
+                {
+                    return Some(address);
                 }
             }
         })

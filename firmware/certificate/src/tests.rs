@@ -27,6 +27,16 @@ fn an_operator_certificate_reads_whole() {
 }
 
 #[test]
+fn cas_and_p256_keys_are_told_apart() {
+    let operator = Certificate::parse(OPERATOR).unwrap();
+    assert!(!operator.is_ca(), "an end entity");
+    assert!(operator.has_p256_key());
+    let ca = Certificate::parse(include_bytes!("../tests/fixtures/ca.der")).unwrap();
+    assert!(ca.is_ca());
+    assert!(ca.has_p256_key());
+}
+
+#[test]
 fn a_certificate_without_the_extension_has_no_role() {
     let certificate = Certificate::parse(NO_ROLE).unwrap();
     assert_eq!(certificate.role(), Ok(None));

@@ -175,3 +175,17 @@ pub fn self_signed<'o>(
     let start = out.len().checked_sub(written).ok_or(Error::Internal)?;
     out.get(start..).ok_or(Error::Internal)
 }
+
+/// Whether Mbed TLS reads `der` as one certificate (it is parsed into the
+/// arena and freed again).
+pub fn check_certificate(der: &[u8]) -> Result<(), Error> {
+    let mut parsed = MaybeUninit::<sys::mbedtls_x509_crt>::zeroed();
+    let parsed = parsed.as_mut_ptr();
+    // SAFETY: initialized, used, freed; `der` outlives the call.
+    unsafe {
+        sys::mbedtls_x509_crt_init(parsed);
+        let result = check(sys::mbedtls_x509_crt_parse_der(parsed, der.as_ptr(), der.len()));
+        sys::mbedtls_x509_crt_free(parsed);
+        result.map_err(|_| Error::BadCertificate)
+    }
+}

@@ -334,6 +334,23 @@ impl<'a, F: NorFlash, P: Platform> Controller<'a, F, P> {
         self.link.map(crate::robot_link::Link::health).filter(|status| status.target.is_some())
     }
 
+    /// Calls `f` with the store's record under `key` (the TLS records).
+    #[cfg(feature = "tls")]
+    pub async fn with_record<R>(&self, key: u8, f: impl FnOnce(Option<&[u8]>) -> R) -> Result<R, Refusal> {
+        let mut store = self.store.lock().await;
+        store.with_record(key, f).await.map_err(|_| Refusal::Storage)
+    }
+
+    /// Saves the client CA (`None`: removes it); it applies at the next start.
+    #[cfg(feature = "tls")]
+    pub async fn save_client_ca(&self, der: Option<&[u8]>) -> Result<(), Refusal> {
+        let mut store = self.store.lock().await;
+        let saved = crate::identity::save_client_ca(&mut store, der).await;
+        let storage = store.status();
+        self.state.lock(|state| state.borrow_mut().storage = storage);
+        saved.map_err(|_| Refusal::Storage)
+    }
+
     /// The settings store's health.
     pub fn storage(&self) -> StorageStatus {
         self.state.lock(|state| state.borrow().storage)

@@ -53,6 +53,14 @@ pub(super) enum Endpoint {
     /// `POST /api/firmware` (feature `update`).
     #[cfg(feature = "update")]
     Firmware,
+    /// `GET /api/tls` (feature `tls`).
+    #[cfg(feature = "tls")]
+    Tls,
+    /// `PUT` and `DELETE /api/tls/client-ca` (feature `tls`).
+    #[cfg(feature = "tls")]
+    PutClientCa,
+    #[cfg(feature = "tls")]
+    DeleteClientCa,
 }
 
 /// Why a request has no endpoint.
@@ -86,6 +94,16 @@ pub(super) fn route(method: &str, path: &str) -> Result<Endpoint, Miss> {
         #[cfg(feature = "update")]
         ("/api/firmware", _) => ("POST", None),
         // /api/events comes later (and /api/firmware without updates): 404.
+        #[cfg(feature = "tls")]
+        ("/api/tls", "GET") => ("", Some(Endpoint::Tls)),
+        #[cfg(feature = "tls")]
+        ("/api/tls", _) => ("GET", None),
+        #[cfg(feature = "tls")]
+        ("/api/tls/client-ca", "PUT") => ("", Some(Endpoint::PutClientCa)),
+        #[cfg(feature = "tls")]
+        ("/api/tls/client-ca", "DELETE") => ("", Some(Endpoint::DeleteClientCa)),
+        #[cfg(feature = "tls")]
+        ("/api/tls/client-ca", _) => ("PUT, DELETE", None),
         _ => return Err(Miss::NotFound),
     };
     endpoint.ok_or(Miss::MethodNotAllowed(allowed))
@@ -270,6 +288,8 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
                 settings_document(out, &self.control().settings(), self.control().password_set(), None);
                 return Reply::new(Status::OK);
             }
+            #[cfg(feature = "tls")]
+            Endpoint::Tls => return super::tls::document(self.control(), out).await,
             _ => {}
         }
         // A change (bodyless POSTs too) says it is JSON: a page of another
@@ -301,10 +321,25 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
                 out.text("}");
                 Reply::new(Status::OK)
             }
+            #[cfg(feature = "tls")]
+            Endpoint::PutClientCa => {
+                let _change = self.http.changes.lock().await;
+                match super::tls::put_client_ca(self.control(), request.body, out).await {
+                    Ok(reply) => reply,
+                    Err(malformed) => malformed_refusal(out, malformed),
+                }
+            }
+            #[cfg(feature = "tls")]
+            Endpoint::DeleteClientCa => {
+                let _change = self.http.changes.lock().await;
+                super::tls::delete_client_ca(self.control(), out).await
+            }
             // Answered above.
             Endpoint::Page | Endpoint::Status | Endpoint::Telemetry | Endpoint::GetSettings => {
                 Reply::new(Status::INTERNAL_SERVER_ERROR)
             }
+            #[cfg(feature = "tls")]
+            Endpoint::Tls => Reply::new(Status::INTERNAL_SERVER_ERROR),
             // Streamed before `respond` (`take`).
             #[cfg(feature = "update")]
             Endpoint::Firmware => Reply::new(Status::INTERNAL_SERVER_ERROR),

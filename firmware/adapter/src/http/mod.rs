@@ -36,6 +36,8 @@ pub mod page;
 pub mod request;
 mod response;
 mod site;
+#[cfg(feature = "tls")]
+mod tls;
 
 use core::fmt;
 
@@ -68,7 +70,7 @@ pub const MAX_HEAD_LEN: usize = 1024;
 /// Longest request body (the whole settings document with two full
 /// allow-lists is about 800 bytes). A `Content-Length` over it: 413 and
 /// the connection closes, before any of the body is read.
-pub const MAX_BODY_LEN: usize = 1024;
+pub const MAX_BODY_LEN: usize = if cfg!(feature = "tls") { 2048 } else { 1024 };
 
 /// The request buffer: a head and a body at their limits.
 pub const REQUEST_BUFFER_LEN: usize = MAX_HEAD_LEN + MAX_BODY_LEN;

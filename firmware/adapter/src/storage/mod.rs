@@ -40,10 +40,20 @@ use crate::settings::Settings;
 
 /// The records' keys in the map. A key this firmware does not know (a
 /// newer firmware's record) is kept as it is.
-mod key {
+pub mod key {
     pub const SETTINGS: u8 = 1;
     pub const PASSWORD: u8 = 2;
+    /// The device's TLS private key (docs/tls.md).
+    pub const TLS_KEY: u8 = 3;
+    /// The device's TLS certificate, self-signed or installed.
+    pub const TLS_CERTIFICATE: u8 = 4;
+    /// The CA that Modbus/TCP Security clients' certificates chain to.
+    pub const TLS_CLIENT_CA: u8 = 5;
 }
+
+/// The longest record under a key other than the settings' (a certificate
+/// with its version and origin bytes).
+pub const MAX_OTHER_RECORD_LEN: usize = 1280;
 
 /// The largest flash word sequential-storage supports, which the buffer
 /// is padded and aligned to.
@@ -51,7 +61,9 @@ const MAX_WORD_SIZE: usize = 32;
 
 /// The working buffer: a key byte and the longest record, rounded up to a
 /// flash word.
-const BUFFER_LEN: usize = (1 + MAX_RECORD_LEN).next_multiple_of(MAX_WORD_SIZE);
+const BUFFER_LEN: usize =
+    (1 + if MAX_RECORD_LEN > MAX_OTHER_RECORD_LEN { MAX_RECORD_LEN } else { MAX_OTHER_RECORD_LEN })
+        .next_multiple_of(MAX_WORD_SIZE);
 
 /// The smallest flash page the store takes: the map moves the live records
 /// of the oldest page forward before erasing it, so a page must hold both
@@ -386,6 +398,47 @@ impl<F: NorFlash> Store<F> {
         if result.is_ok() {
             self.password_bad = false;
         }
+        self.finish(result).await
+    }
+
+    /// The record under `key` (not the settings' or the password's), read
+    /// into `out`; `None` when there is none.
+    pub async fn fetch_record<'o>(&mut self, key: u8, out: &'o mut [u8]) -> Result<Option<&'o [u8]>, StoreError> {
+        let found = self.map.fetch_item::<&[u8]>(&mut self.buffer.0, &key).await;
+        let record = match found {
+            Ok(record) => record,
+            Err(e) => {
+                self.flash_bad = true;
+                self.update_status();
+                return Err(e.into());
+            }
+        };
+        let Some(record) = record else { return Ok(None) };
+        let to = out.get_mut(..record.len()).ok_or(StoreError::Record(RecordError::TooLong))?;
+        to.copy_from_slice(record);
+        Ok(Some(to))
+    }
+
+    /// Calls `f` with the record under `key` (`None`: there is none), read
+    /// into the store's own buffer: nothing is copied.
+    pub async fn with_record<R>(&mut self, key: u8, f: impl FnOnce(Option<&[u8]>) -> R) -> Result<R, StoreError> {
+        match self.map.fetch_item::<&[u8]>(&mut self.buffer.0, &key).await {
+            Ok(record) => Ok(f(record)),
+            Err(e) => {
+                self.flash_bad = true;
+                self.update_status();
+                Err(e.into())
+            }
+        }
+    }
+
+    /// Saves `bytes` as a new record under `key` (not the settings' or the
+    /// password's: they have their own, checked, saves).
+    pub async fn save_record(&mut self, key: u8, bytes: &[u8]) -> Result<(), StoreError> {
+        if key == key::SETTINGS || key == key::PASSWORD || bytes.len() > MAX_OTHER_RECORD_LEN {
+            return Err(StoreError::Record(RecordError::TooLong));
+        }
+        let result = self.store(key, &bytes).await;
         self.finish(result).await
     }
 
