@@ -451,6 +451,12 @@ impl Qemu {
         Self::tap_on(None, None)
     }
 
+    /// Boots the image on the TAP of a new network namespace, as
+    /// [`Qemu::tap`] does, on the state file `state` (kept across boots).
+    pub fn tap_with_state(state: &Path) -> Self {
+        Self::tap_on(Some(state), None)
+    }
+
     /// Boots `bootloader` as the kernel, as [`Qemu::slirp_booting`] does,
     /// on the TAP of a new network namespace, as [`Qemu::tap`] does: the
     /// image with `update` from the state file's ACTIVE, with no DHCP

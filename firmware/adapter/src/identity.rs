@@ -15,8 +15,10 @@
 
 use embedded_storage_async::nor_flash::NorFlash;
 use heapless::Vec;
+use static_cell::StaticCell;
 use tls::identity::{self as made, KEY_LEN, Names};
 
+use crate::settings::Settings;
 use crate::storage::{MAX_OTHER_RECORD_LEN, Store, StoreError, key};
 
 /// The longest certificate the device keeps (its own, or the client CA), in DER.
@@ -70,6 +72,57 @@ impl core::fmt::Display for Error {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             Self::Tls(e) => write!(f, "{e}"),
+        }
+    }
+}
+
+/// Starts TLS for a program: the arena and the entropy source, the
+/// identity from `store` (made and saved when new), and port 802's
+/// configuration, which `Board::tls` takes. `None`, with the reason
+/// logged, when `tls.modbus` is off, no client CA is installed (nor a
+/// `factory_ca` given, as hal-sim's `--client-ca`), or TLS cannot start.
+/// Once, before the program is built; `address` is the static address the
+/// device starts with, if any (its certificate names it).
+pub async fn start<F: NorFlash>(
+    store: &mut Store<F>,
+    settings: &Settings,
+    mac: [u8; 6],
+    address: Option<[u8; 4]>,
+    arena: &'static mut [u8],
+    entropy: tls::Entropy,
+    factory_ca: Option<&[u8]>,
+) -> Option<&'static tls::Server> {
+    if !settings.tls.modbus {
+        info!("modbus/tcp security off (tls.modbus)");
+        return None;
+    }
+    if let Err(e) = tls::init(arena, entropy) {
+        warn!("tls: cannot start: {}", e);
+        return None;
+    }
+    let name = settings.device.name.or_default(mac);
+    let names = Names { name: name.as_str(), address };
+    let identity = match load(store, &names).await {
+        Ok(identity) => identity,
+        Err(e) => {
+            warn!("tls: no identity: {}", e);
+            return None;
+        }
+    };
+    let Some(client_ca) = identity.client_ca.as_deref().or(factory_ca) else {
+        info!("modbus/tcp security: no client CA installed: port 802 stays closed");
+        return None;
+    };
+    let key = made::key_der(&identity.key);
+    let credentials = tls::Credentials { certificate: &identity.certificate, key: &key, client_ca: Some(client_ca) };
+    match tls::Server::new(&credentials) {
+        Ok(server) => {
+            static SERVER: StaticCell<tls::Server> = StaticCell::new();
+            Some(&*SERVER.init(server))
+        }
+        Err(e) => {
+            warn!("modbus/tcp security: cannot make its configuration: {}", e);
+            None
         }
     }
 }

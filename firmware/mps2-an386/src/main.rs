@@ -24,6 +24,8 @@ mod board;
 mod platform;
 mod runtime;
 mod systick;
+#[cfg(feature = "tls")]
+mod tls;
 #[cfg(feature = "update")]
 mod update;
 #[cfg(feature = "update")]
@@ -86,7 +88,8 @@ fn main() -> ! {
     // none are saved or they cannot be taken whole), or without the
     // store the factory settings.
     #[cfg(feature = "http")]
-    let (store, loaded) = load_settings();
+    #[allow(unused_mut, reason = "the TLS identity's records are saved into it (tls)")]
+    let (mut store, mut loaded) = load_settings();
     #[cfg(feature = "http")]
     let settings = loaded.settings;
     #[cfg(not(feature = "http"))]
@@ -95,6 +98,17 @@ fn main() -> ! {
     // sequence numbers and ports between boards, so the MAC will do.
     let [a, b, c, d, e, f] = mac;
     let seed = u64::from_le_bytes([a, b, c, d, e, f, 0x4d, 0x42]);
+    // TLS: the identity from the store (made at the first start), port
+    // 802's configuration (docs/tls.md).
+    #[cfg(feature = "tls")]
+    let tls = {
+        let address = settings.network.address.map(|cidr| cidr.address);
+        let Some(arena) = tls::arena() else { fail("TLS arena", "taken twice") };
+        let started = adapter::identity::start(&mut store, &settings, mac, address, arena, tls::entropy, None);
+        let tls = embassy_futures::block_on(started);
+        loaded.status = store.status();
+        tls
+    };
     let (stack, runner, settings) = program::network(ethernet, settings, mac, seed);
     let program = program::build(Board {
         stack,
@@ -110,6 +124,8 @@ fn main() -> ! {
         platform: platform::Mps2::new(stack, mac, settings.network.mode),
         #[cfg(feature = "http")]
         http_port: Some(adapter::http::HTTP_PORT),
+        #[cfg(feature = "tls")]
+        tls,
     });
     runtime::run(|spawner| {
         let spawned = program::spawn(spawner, program, runner, RamInputs::default(), NoRobot)

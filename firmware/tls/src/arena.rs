@@ -125,3 +125,29 @@ pub(crate) unsafe extern "C" fn free(data: *mut c_void) {
         }
     });
 }
+
+/// The C library's `calloc` and `free` on a bare-metal target, which has
+/// none: Mbed TLS's defaults name them before [`crate::init`] points it at
+/// the arena's own; both are the arena.
+#[cfg(target_os = "none")]
+mod libc {
+    use core::ffi::c_void;
+
+    /// # Safety
+    ///
+    /// C's `calloc`.
+    #[unsafe(no_mangle)]
+    pub unsafe extern "C" fn calloc(count: usize, size: usize) -> *mut c_void {
+        // SAFETY: the same contract.
+        unsafe { super::calloc(count, size) }
+    }
+
+    /// # Safety
+    ///
+    /// C's `free`, of a block from `calloc`.
+    #[unsafe(no_mangle)]
+    pub unsafe extern "C" fn free(data: *mut c_void) {
+        // SAFETY: the same contract.
+        unsafe { super::free(data) }
+    }
+}

@@ -22,6 +22,10 @@ pub mod rng;
 mod server;
 mod session;
 
+// The C library functions Mbed TLS needs beyond compiler-builtins'.
+#[cfg(target_os = "none")]
+use tinyrlibc as _;
+
 use core::fmt;
 
 use mbedtls_rs_sys as sys;

@@ -1,0 +1,115 @@
+//! Modbus/TCP Security on the mps2-an386 image (docs/tls.md), in QEMU on a
+//! TAP inside a network namespace: a client CA installed through the API,
+//! then after a reboot pymodbus's `ModbusTlsClient` with an operator's
+//! certificate reads and writes on port 802, a viewer's write gets
+//! exception 01, and a certificate from another CA gets no session.
+//! Needs root, QEMU, python3 with pymodbus and openssl.
+
+use std::path::{Path, PathBuf};
+use std::process::Stdio;
+use std::time::Duration;
+
+use serde_json::Value;
+use system_tests::OWNER_PASSWORD;
+use system_tests::netns::DEVICE_IP;
+use system_tests::qemu::{self, Qemu};
+use system_tests::update::test_dir;
+
+fn fixture(name: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/tls/tests/fixtures").join(name).to_str().unwrap().to_owned()
+}
+
+/// curl in the namespace: body and status.
+fn curl(qemu: &Qemu, args: &[&str]) -> (u16, String) {
+    let output = qemu
+        .ns()
+        .unwrap()
+        .command("curl")
+        .args(["-sS", "-m", "10", "-w", "\n%{http_code}", "-H", "Content-Type: application/json"])
+        .args(args)
+        .stdin(Stdio::null())
+        .output()
+        .expect("curl runs");
+    let text = String::from_utf8_lossy(&output.stdout).into_owned();
+    let (body, status) = text.rsplit_once('\n').unwrap_or(("", "0"));
+    (status.trim().parse().unwrap_or(0), body.to_owned())
+}
+
+fn device_certificate(qemu: &Qemu, dir: &Path) -> PathBuf {
+    let output = qemu
+        .ns()
+        .unwrap()
+        .command("openssl")
+        .args(["s_client", "-connect", &format!("{DEVICE_IP}:802"), "-showcerts"])
+        .args(["-cert", &fixture("operator.pem"), "-key", &fixture("operator.key")])
+        .stdin(Stdio::null())
+        .output()
+        .expect("openssl runs");
+    let text = String::from_utf8_lossy(&output.stdout);
+    let begin = text.find("-----BEGIN CERTIFICATE-----").unwrap_or_else(|| panic!("no certificate:\n{text}"));
+    let end = text[begin..].find("-----END CERTIFICATE-----").unwrap() + begin + 25;
+    let path = dir.join("device.pem");
+    std::fs::write(&path, format!("{}\n", &text[begin..end])).unwrap();
+    path
+}
+
+fn pymodbus(qemu: &Qemu, cert: &str, key: &str, server_cert: &Path) -> Value {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("peers/pymodbus_tls.py");
+    let output = qemu
+        .ns()
+        .unwrap()
+        .command("python3")
+        .arg(&script)
+        .args([DEVICE_IP, "802", &fixture(cert), &fixture(key)])
+        .arg(server_cert)
+        .output()
+        .expect("python3 runs");
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    serde_json::from_str(stdout.trim())
+        .unwrap_or_else(|e| panic!("no JSON ({e}):\n{stdout}\n{}", String::from_utf8_lossy(&output.stderr)))
+}
+
+#[test]
+fn an_operator_reads_and_writes_on_802_and_a_viewer_only_reads() {
+    let dir = test_dir("qemu-tls");
+    let state = dir.join("psram.state");
+    qemu::erased_state(&state).unwrap();
+    let url = |path: &str| format!("http://{DEVICE_IP}{path}");
+    let credentials = format!("admin:{OWNER_PASSWORD}");
+
+    // First boot: the device makes its key; the plant installs its CA.
+    let qemu = Qemu::tap_with_state(&state);
+    qemu.wait_for_log(&format!("Modbus TCP server at {DEVICE_IP}:502"), Duration::from_secs(60));
+    let (status, body) = curl(
+        &qemu,
+        &["-X", "PUT", "--data-binary", &format!(r#"{{"password": "{OWNER_PASSWORD}"}}"#), &url("/api/password")],
+    );
+    assert_eq!(status, 200, "{body}");
+    let ca = std::fs::read_to_string(fixture("client-ca.pem")).unwrap();
+    let body = serde_json::json!({ "certificate": ca }).to_string();
+    let (status, reply) =
+        curl(&qemu, &["-X", "PUT", "-u", &credentials, "--data-binary", &body, &url("/api/tls/client-ca")]);
+    assert_eq!(status, 200, "{reply}");
+    let log = qemu.finish();
+    assert!(log.contains("tls: a new device key"), "{log}");
+
+    // Second boot: 802 serves the plant's clients.
+    let qemu = Qemu::tap_with_state(&state);
+    qemu.wait_for_log(&format!("Modbus TCP server at {DEVICE_IP}:502"), Duration::from_secs(60));
+    let server_cert = device_certificate(&qemu, &dir);
+    let operator = pymodbus(&qemu, "operator.pem", "operator.key", &server_cert);
+    assert_eq!(operator["read"].as_array().map(Vec::len), Some(4), "{operator}");
+    assert_eq!(operator["write"], "ok", "{operator}");
+    let viewer = pymodbus(&qemu, "viewer.pem", "viewer.key", &server_cert);
+    assert_eq!(viewer["read"].as_array().map(Vec::len), Some(4), "{viewer}");
+    assert_eq!(viewer["write"], serde_json::json!({"exception": 1}), "{viewer}");
+    let stranger = pymodbus(&qemu, "stranger.pem", "stranger.key", &server_cert);
+    assert!(!stranger["read"].is_array(), "{stranger}");
+    let (_, status) = curl(&qemu, &[&url("/api/status")]);
+    let status: Value = serde_json::from_str(&status).unwrap();
+    assert!(status["counters"]["tls_sessions"].as_u64().unwrap() >= 3, "{status}");
+    assert!(status["counters"]["tls_refused"].as_u64().unwrap() >= 1, "{status}");
+    let log = qemu.finish();
+    assert!(!log.contains("tls: a new device key"), "the key kept across the reboot: {log}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
