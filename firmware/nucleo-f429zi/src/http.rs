@@ -58,7 +58,27 @@ pub struct Nucleo {
     mac: [u8; 6],
     mode: NetMode,
     reset: ResetCause,
-    rng: Mutex<CriticalSectionRawMutex, RefCell<Rng<'static, RNG>>>,
+}
+
+/// The hardware RNG: the admin password's salts and, with `tls`, the TLS
+/// generator's entropy ([`entropy`]).
+static RNG_CELL: Mutex<CriticalSectionRawMutex, RefCell<Option<Rng<'static, RNG>>>> = Mutex::new(RefCell::new(None));
+
+/// Hands the hardware RNG to [`entropy`], for good (once, at start).
+pub fn install_rng(rng: Rng<'static, RNG>) {
+    RNG_CELL.lock(|cell| *cell.borrow_mut() = Some(rng));
+}
+
+/// Fills `buf` from the hardware RNG (RM0090 24: a 32-bit word every 40
+/// periods of its 48 MHz clock); `false` when it is not there.
+pub fn entropy(buf: &mut [u8]) -> bool {
+    RNG_CELL.lock(|rng| match rng.try_borrow_mut().ok().as_deref_mut().and_then(Option::as_mut) {
+        Some(rng) => {
+            rng.fill_bytes(buf);
+            true
+        }
+        None => false,
+    })
 }
 
 impl core::fmt::Debug for Nucleo {
@@ -69,15 +89,9 @@ impl core::fmt::Debug for Nucleo {
 
 impl Nucleo {
     /// The platform of `stack`, started with `settings` after a `reset`, on
-    /// the MAC `mac`, drawing salts from `rng`.
-    pub fn new(
-        stack: Stack<'static>,
-        mac: [u8; 6],
-        settings: &Settings,
-        reset: ResetCause,
-        rng: Rng<'static, RNG>,
-    ) -> Self {
-        Self { stack, mac, mode: settings.network.mode, reset, rng: Mutex::new(RefCell::new(rng)) }
+    /// the MAC `mac`; its salts come from the RNG [`install_rng`] gave.
+    pub fn new(stack: Stack<'static>, mac: [u8; 6], settings: &Settings, reset: ResetCause) -> Self {
+        Self { stack, mac, mode: settings.network.mode, reset }
     }
 }
 
@@ -109,11 +123,7 @@ impl Platform for Nucleo {
 
     fn salt(&self) -> [u8; 16] {
         let mut salt = [0u8; 16];
-        self.rng.lock(|rng| {
-            if let Ok(mut rng) = rng.try_borrow_mut() {
-                rng.fill_bytes(&mut salt);
-            }
-        });
+        entropy(&mut salt);
         salt
     }
 

@@ -26,6 +26,8 @@ mod safety;
 // Its erase parallelism is for the flash driver, which only `http` has.
 #[cfg_attr(not(feature = "http"), expect(dead_code))]
 mod silicon;
+#[cfg(feature = "tls")]
+mod tls;
 #[cfg(feature = "update")]
 mod update;
 
@@ -94,11 +96,27 @@ async fn start(spawner: Spawner) {
     // (a factory reset, or a format, erases two 16 KiB sectors: up to 1 s,
     // near the watchdog's shortest period, 1.36 s).
     #[cfg(feature = "http")]
-    let (store, loaded) = board.tasks.block_on(http::load(board.flash.settings, board.factory_reset));
+    #[allow(unused_mut, reason = "the TLS identity's records are saved into it (tls)")]
+    let (mut store, mut loaded) = board.tasks.block_on(http::load(board.flash.settings, board.factory_reset));
+    #[cfg(feature = "http")]
+    http::install_rng(board.rng);
     #[cfg(feature = "http")]
     let settings = loaded.settings;
     #[cfg(not(feature = "http"))]
     let settings = SETTINGS;
+    // TLS: the identity from the store (made at the first start, from the
+    // hardware RNG), port 802's configuration (docs/tls.md). Blocking, fed,
+    // as the load: a new key's certificate and its two records take a
+    // signature and two flash writes.
+    #[cfg(feature = "tls")]
+    let tls = {
+        let address = settings.network.address.map(|cidr| cidr.address);
+        let Some(arena) = tls::arena() else { defmt::panic!("the TLS arena, taken twice") };
+        let started = adapter::identity::start(&mut store, &settings, board.mac, address, arena, http::entropy, None);
+        let tls = board.tasks.block_on(started);
+        loaded.status = store.status();
+        tls
+    };
     let (stack, runner, settings) = program::network(board.ethernet, settings, board.mac, board.seed);
     let program = program::build(Board {
         stack,
@@ -111,9 +129,11 @@ async fn start(spawner: Spawner) {
         #[cfg(feature = "http")]
         loaded,
         #[cfg(feature = "http")]
-        platform: http::Nucleo::new(stack, board.mac, settings, board.reset, board.rng),
+        platform: http::Nucleo::new(stack, board.mac, settings, board.reset),
         #[cfg(feature = "http")]
         http_port: Some(adapter::http::HTTP_PORT),
+        #[cfg(feature = "tls")]
+        tls,
     });
 
     // Every task pool is sized for exactly these spawns; a failure is a build
