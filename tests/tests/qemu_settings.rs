@@ -121,7 +121,10 @@ fn a_put_setting_applies_at_once_and_outlives_qemu() {
         assert_eq!(answer_to_unit(&qemu, 1).await, Err(ExceptionCode::GatewayTargetDevice));
         let (status, body) = request(qemu.http_addr(), "GET", "/api/status", None);
         assert_eq!(status, 200, "{body}");
-        assert!(body.contains(r#""storage":{"ok":true,"records":2,"#), "the password's and the setting's: {body}");
+        assert!(
+            body.contains(r#""storage":{"ok":true,"records":4,"#),
+            "the password's and the setting's, and the TLS key and certificate of the first start: {body}"
+        );
         // The CPU load, measured by the image's executor loop once a second has passed.
         let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
         let load = loop {
@@ -135,7 +138,10 @@ fn a_put_setting_applies_at_once_and_outlives_qemu() {
         assert!(load.parse::<u8>().is_ok_and(|percent| percent <= 100), "cpu_load_percent: {load}");
     });
     let log = qemu.finish();
-    assert!(log.contains("settings: 2 records; storage ok: true"), "the password's and the setting's: {log}");
+    assert!(
+        log.contains("settings: 4 records; storage ok: true"),
+        "the password's and the setting's, and the TLS key and certificate: {log}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -17,7 +17,7 @@ mod values;
 use core::fmt;
 
 pub use self::parse::{Cidr, Invalid, Ipv4};
-pub use self::values::{NetMode, PlainHttp, RobotLink};
+pub use self::values::{NetMode, RobotLink};
 use crate::access::{Access, AllowList, Network, Rights, Roles};
 use crate::device::{SafeState, Watchdog};
 use crate::map::WritePolicy;
@@ -90,8 +90,8 @@ pub struct RobotSettings {
     pub poll_ms: u16,
 }
 
-/// The `tls` group: Modbus/TCP Security, and which plain ports stay open
-/// (docs/tls.md).
+/// The `tls` group: Modbus/TCP Security, and whether plain Modbus stays
+/// open beside it (docs/tls.md).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct TlsSettings {
@@ -101,8 +101,6 @@ pub struct TlsSettings {
     pub roles: Roles,
     /// Plain Modbus TCP on `modbus.port`.
     pub plain_modbus: bool,
-    /// What port 80 does.
-    pub plain_http: PlainHttp,
 }
 
 /// Every setting of the device.
@@ -138,7 +136,7 @@ impl Settings {
         },
         watchdog: WatchdogSettings { timeout_ms: 0, safe_do: 0, safe_tool_do: 0, safe_ao1: 0, safe_ao2: 0 },
         robot: RobotSettings { link: None, poll_ms: 100 },
-        tls: TlsSettings { modbus: true, roles: Roles::DEFAULT, plain_modbus: true, plain_http: PlainHttp::Redirect },
+        tls: TlsSettings { modbus: true, roles: Roles::DEFAULT, plain_modbus: true },
     };
 
     /// The rules that tie fields together; each field's own rule was checked
@@ -315,12 +313,6 @@ impl Show for Option<AllowList> {
 impl Show for bool {
     fn show(&self, out: &mut dyn fmt::Write) -> fmt::Result {
         out.write_str(if *self { "on" } else { "off" })
-    }
-}
-
-impl Show for PlainHttp {
-    fn show(&self, out: &mut dyn fmt::Write) -> fmt::Result {
-        out.write_str(self.as_str())
     }
 }
 
@@ -615,11 +607,6 @@ fields! {
         env "TLS_PLAIN_MODBUS", flag "plain-modbus",
         rule "on or off (plain Modbus TCP on modbus.port; off only while tls.modbus is on)",
         |text| parse::on_off(text);
-    /// What port 80 does.
-    TlsPlainHttp: tls.plain_http, Text, AtOnce,
-        env "TLS_PLAIN_HTTP", flag "plain-http",
-        rule "redirect (to HTTPS on 443) or serve (the page and the API in clear, for a closed network)",
-        |text| PlainHttp::parse(text);
 }
 
 /// Most errors one change can have: one per field.

@@ -46,37 +46,6 @@ impl fmt::Display for NetMode {
     }
 }
 
-/// What plain HTTP on port 80 does once the device serves HTTPS.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum PlainHttp {
-    /// Every request is sent to the same path on HTTPS (443).
-    Redirect,
-    /// The page and the API in clear, for a closed network.
-    Serve,
-}
-
-impl PlainHttp {
-    /// `redirect` or `serve`.
-    pub const fn parse(text: &str) -> Result<Self, Invalid> {
-        if is(text, "redirect") {
-            Ok(Self::Redirect)
-        } else if is(text, "serve") {
-            Ok(Self::Serve)
-        } else {
-            Err(Invalid)
-        }
-    }
-
-    /// `redirect` or `serve`.
-    pub const fn as_str(self) -> &'static str {
-        match self {
-            Self::Redirect => "redirect",
-            Self::Serve => "serve",
-        }
-    }
-}
-
 /// The robot controller to mirror (docs/settings.md, `robot.link`): `IPv4[:port][/unit]`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
