@@ -105,5 +105,6 @@ fn the_control_socket_reports_the_diagnostics_counters() {
     assert_eq!((counters["bad_address"], counters["bad_value"]), (1, 1));
     assert_eq!((counters["bad_protocol"], counters["bad_length"], counters["evictions"]), (1, 1, 1));
     assert_eq!((counters["robot_polls"], counters["robot_errors"], counters["robot_link_downs"]), (0, 0, 0), "no link");
-    assert_eq!(counters.len(), 15, "every counter is listed");
+    assert_eq!((counters["tls_sessions"], counters["tls_failed"], counters["tls_refused"]), (0, 0, 0), "no TLS client");
+    assert_eq!(counters.len(), 18, "every counter is listed");
 }

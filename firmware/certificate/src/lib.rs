@@ -15,11 +15,8 @@
 //! assert_eq!(certificate::common_name(certificate.subject), Some("operator-1"));
 //! # Ok::<(), certificate::Error>(())
 //! ```
-#![no_std]
+#![cfg_attr(not(test), no_std)]
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::indexing_slicing))]
-
-#[cfg(test)]
-extern crate std;
 
 pub mod der;
 mod time;

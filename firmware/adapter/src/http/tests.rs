@@ -626,7 +626,7 @@ fn a_body_over_the_limit_is_refused_before_it_is_read() {
     assert_eq!(connection.result, Some(Err(Error::Limit(Limit::BodyTooLarge))));
     let response = Response::parse(&connection.wire.take_replies()).unwrap();
     assert_eq!(response.status, 413);
-    assert_eq!(response.json(), json!({"errors": {"request": "body over 1024 bytes"}}));
+    assert_eq!(response.json(), json!({"errors": {"request": format!("body over {MAX_BODY_LEN} bytes")}}));
     // The largest body is read: one that fits the limit and breaks a rule.
     let mut body = r#"{"device": {"name": ""#.to_string();
     body.push_str(&"a".repeat(MAX_BODY_LEN - body.len() - 3));
