@@ -12,7 +12,7 @@ use test_support::reply::{Answer, CLEAR_COUNTERS, Refusals, check_reply, is_writ
 
 /// What `policy` refuses, in the reference's terms.
 pub fn refusals(policy: &Policy) -> Refusals {
-    Refusals { unit_id: policy.unit_id, read_only: policy.read_only }
+    Refusals { unit_id: policy.unit_id, read_only: !policy.rights.allow(true) }
 }
 
 /// Checks `reply` against its `request` (both whole frames, protocol id 0)
@@ -57,7 +57,7 @@ pub fn counters(frames: &[&[u8]], replies: &[Vec<u8>], lost: bool, policy: &Poli
                 }
             }
             [code, exception] if code & 0x80 != 0 => match exception {
-                0x01 if is_write(pdu) && policy.read_only => c.refused_writes += 1,
+                0x01 if is_write(pdu) && !policy.rights.allow(true) => c.refused_writes += 1,
                 0x01 => c.bad_function += 1,
                 0x02 => c.bad_address += 1,
                 0x03 => c.bad_value += 1,

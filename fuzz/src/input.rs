@@ -2,7 +2,7 @@
 //! (missing header bytes read as 0), and [`SessionInput::to_bytes`] and
 //! [`HandlerInput::to_bytes`] write the seeds.
 
-use adapter::server::Policy;
+use adapter::server::{Policy, Rights};
 
 use crate::check::write_policy;
 
@@ -155,6 +155,6 @@ fn policy(flags: u8, unit_id: u8) -> Policy {
     Policy {
         unit_id: (flags & UNIT_FILTER != 0).then_some(unit_id),
         write_policy: write_policy(flags & STRICT != 0),
-        read_only: flags & READ_ONLY != 0,
+        rights: if flags & READ_ONLY != 0 { Rights::Read } else { Rights::ReadWrite },
     }
 }
