@@ -13,6 +13,7 @@
 //! reply in order, and the map (and the pins) change only through
 //! acknowledged writes.
 
+pub mod certificate;
 pub mod check;
 pub mod connection;
 mod http;
