@@ -15,22 +15,6 @@ use tokio_modbus::client::{Context as Modbus, Reader as _, Writer as _};
 use crate::device::{Context, Device};
 use crate::{Failure, Outcome};
 
-/// Register 259's values (docs/data-map.md, "Robot state").
-const ROBOT_STATES: [(u16, &str); 12] = [
-    (0, "initializing"),
-    (1, "standby"),
-    (2, "operating"),
-    (3, "safe_off"),
-    (4, "teaching"),
-    (5, "safe_stop"),
-    (6, "emergency_stop"),
-    (7, "homing"),
-    (8, "recovery"),
-    (9, "safe_stop_2"),
-    (10, "safe_off_2"),
-    (15, "not_ready"),
-];
-
 /// A point as the user named it: the map's point, and one element of it
 /// (a pin, counted from 1, or one register of several), or all of it.
 #[derive(Debug, Clone, Copy)]
@@ -129,7 +113,7 @@ fn show(target: &Target, registers: &[u16], analog_type: Option<u16>) -> (Vec<St
         }
         Encoding::Bool => (vec![format!("{label} = {}", if first != 0 { "on" } else { "off" })], json!(first != 0)),
         Encoding::RobotState => {
-            let name = ROBOT_STATES.iter().find(|(code, _)| *code == first).map_or("unknown", |(_, name)| name);
+            let name = adapter::map::names::robot_state_name(first);
             (vec![format!("{label} = {name} ({first})")], json!({"code": first, "name": name}))
         }
         Encoding::SafetyStop | Encoding::Unsigned | Encoding::Signed | Encoding::Zero => {

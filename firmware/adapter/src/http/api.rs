@@ -666,7 +666,7 @@ impl Io {
         });
         let [state, servo_on, emergency_stop, safety_stop, direct_teach, power_button] = self.robot;
         out.text(",\"state\":");
-        out.string(robot_state_name(state));
+        out.string(crate::map::names::robot_state_name(state));
         out.text(",\"state_code\":");
         out.number(state);
         out.text(",\"servo_on\":");
@@ -755,25 +755,6 @@ pub(super) fn telemetry_document(out: &mut Out<'_>, values: &[u16; TELEMETRY_LEN
         }
     }
     out.text("]}");
-}
-
-/// Register 259's value by name (docs/data-map.md, *Robot state*).
-fn robot_state_name(code: u16) -> &'static str {
-    match code {
-        0 => "initializing",
-        1 => "standby",
-        2 => "operating",
-        3 => "safe_off",
-        4 => "teaching",
-        5 => "safe_stop",
-        6 => "emergency_stop",
-        7 => "homing",
-        8 => "recovery",
-        9 => "safe_stop_2",
-        10 => "safe_off_2",
-        15 => "not_ready",
-        _ => "unknown",
-    }
 }
 
 /// Every setting grouped as docs/settings.md's table, numbers unquoted, and the

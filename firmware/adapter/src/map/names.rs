@@ -107,6 +107,27 @@ pub fn pin_coil(register: u16, pin: u8) -> Option<u16> {
     })
 }
 
+/// The robot state register's values by name (docs/data-map.md, "Robot
+/// state"), as the API, the page and host tools show them; `unknown` for
+/// a code the map gives no name.
+pub const fn robot_state_name(code: u16) -> &'static str {
+    match code {
+        0 => "initializing",
+        1 => "standby",
+        2 => "operating",
+        3 => "safe_off",
+        4 => "teaching",
+        5 => "safe_stop",
+        6 => "emergency_stop",
+        7 => "homing",
+        8 => "recovery",
+        9 => "safe_stop_2",
+        10 => "safe_off_2",
+        15 => "not_ready",
+        _ => "unknown",
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
