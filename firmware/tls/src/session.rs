@@ -142,6 +142,10 @@ impl<'s, S: Read + Write> Session<'s, S> {
         Ok(())
     }
 
+    /// Hands what Mbed TLS wrote to the stream. The stream is not flushed:
+    /// an embassy-net socket's `flush` waits for the peer's acknowledgement,
+    /// a delayed ACK's time (up to 40 ms on Linux) after every reply;
+    /// [`Write::flush`] and [`Session::close`] flush it.
     async fn flush_tx(&mut self) -> Result<(), Error> {
         let pipe = &mut self.pipe;
         let mut sent = 0;
@@ -153,6 +157,10 @@ impl<'s, S: Read + Write> Session<'s, S> {
             }
         }
         pipe.tx_len = 0;
+        Ok(())
+    }
+
+    async fn flush_stream(&mut self) -> Result<(), Error> {
         self.stream.flush().await.map_err(|e| Error::Io(embedded_io_async::Error::kind(&e)))
     }
 
@@ -194,7 +202,8 @@ impl<'s, S: Read + Write> Session<'s, S> {
     pub async fn close(&mut self) -> Result<(), Error> {
         // SAFETY: a set-up context.
         let status = self.drive(|ssl| unsafe { sys::mbedtls_ssl_close_notify(ssl) }).await?;
-        check(status)
+        check(status)?;
+        self.flush_stream().await
     }
 
     /// The stream under the session.
@@ -249,6 +258,7 @@ impl<S: Read + Write> Write for Session<'_, S> {
     }
 
     async fn flush(&mut self) -> Result<(), Error> {
-        self.flush_tx().await
+        self.flush_tx().await?;
+        self.flush_stream().await
     }
 }
