@@ -23,9 +23,9 @@ pub const SOCKET_RX_LEN: usize = 512;
 /// back by TCP's flow control.
 pub const SOCKET_TX_LEN: usize = 512;
 /// Keep-alive probes find a peer that vanished (cable pulled) on an idle connection.
-const KEEP_ALIVE: Duration = Duration::from_secs(20);
+pub(crate) const KEEP_ALIVE: Duration = Duration::from_secs(20);
 /// A connection whose peer stops acknowledging for this long is dropped by the stack.
-const TCP_TIMEOUT: Duration = Duration::from_secs(60);
+pub(crate) const TCP_TIMEOUT: Duration = Duration::from_secs(60);
 /// How long a closing connection may take to deliver its last bytes and
 /// its FIN, then its RST; a LAN answers in well under a millisecond, so
 /// running out of it means lost packets or a peer gone quiet.

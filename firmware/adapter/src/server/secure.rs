@@ -25,7 +25,7 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::mutex::Mutex;
 use embassy_time::{Duration, Instant, with_timeout};
 
-use super::listener::{Peer, close};
+use super::listener::{KEEP_ALIVE, Peer, TCP_TIMEOUT, close};
 use super::{Server, Service, SlotId, Stats, serve};
 
 /// Modbus/TCP Security's port (IANA).
@@ -69,7 +69,8 @@ pub async fn listen_secure<S: Service>(stack: Stack<'_>, server: &Server<'_, S>,
     loop {
         let mut socket = TcpSocket::new(stack, &mut rx, &mut tx);
         socket.set_nagle_enabled(false);
-        socket.set_timeout(Some(Duration::from_secs(60)));
+        socket.set_keep_alive(Some(KEEP_ALIVE));
+        socket.set_timeout(Some(TCP_TIMEOUT));
         if let Err(e) = socket.accept(SECURE_PORT).await {
             warn!("secure slot {}: accept failed: {:?}", slot, e);
             continue;
