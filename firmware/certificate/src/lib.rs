@@ -184,9 +184,10 @@ impl<'a> Certificate<'a> {
         core::str::from_utf8(role.value).map(Some).map_err(|_| Error::BadRole)
     }
 
-    /// The DNS names of the subject alternative name extension, in order
-    /// (other kinds of name are skipped).
-    pub fn dns_names(&self) -> impl Iterator<Item = &'a str> {
+    /// The subject alternative name extension's names, each an element
+    /// with its context tag (none without the extension, or after a
+    /// malformed one).
+    fn alt_names(&self) -> impl Iterator<Item = Tlv<'a>> + 'a {
         let names = self.extension(SUBJECT_ALT_NAME_OID).and_then(|value| {
             let mut reader = Reader::new(value);
             let list = reader.expect(tag::SEQUENCE).ok()?;
@@ -194,21 +195,16 @@ impl<'a> Certificate<'a> {
             Some(list.value)
         });
         let mut reader = Reader::new(names.unwrap_or(&[]));
-        core::iter::from_fn(move || {
-            loop {
-                let name = reader.read().ok()?;
-                // dNSName [2], an IA5String: ASCII.
-                if name.tag == 0x82
-                    && let Ok(text) = core::str::from_utf8(name.value)
-                {
-                    return Some(text);
-                }
-            }
-        })
+        core::iter::from_fn(move || reader.read().ok())
     }
-}
 
-impl<'a> Certificate<'a> {
+    /// The DNS names of the subject alternative name extension, in order
+    /// (other kinds of name are skipped).
+    pub fn dns_names(&self) -> impl Iterator<Item = &'a str> + 'a {
+        // dNSName [2], an IA5String: ASCII.
+        self.alt_names().filter(|name| name.tag == 0x82).filter_map(|name| core::str::from_utf8(name.value).ok())
+    }
+
     /// Whether the basic constraints extension says it is a CA (RFC 5280
     /// 4.2.1.9: `cA` TRUE); without the extension, it is not.
     pub fn is_ca(&self) -> bool {
@@ -233,24 +229,8 @@ impl<'a> Certificate<'a> {
     /// The IPv4 addresses of the subject alternative name extension, in
     /// order (IPv6 and other kinds of name are skipped).
     pub fn ipv4_addresses(&self) -> impl Iterator<Item = [u8; 4]> + 'a {
-        let names = self.extension(SUBJECT_ALT_NAME_OID).and_then(|value| {
-            let mut reader = Reader::new(value);
-            let list = reader.expect(tag::SEQUENCE).ok()?;
-            reader.finish().ok()?;
-            Some(list.value)
-        });
-        let mut reader = Reader::new(names.unwrap_or(&[]));
-        core::iter::from_fn(move || {
-            loop {
-                let name = reader.read().ok()?;
-                // iPAddress [7], an OCTET STRING: 4 bytes for IPv4.
-                if name.tag == 0x87
-                    && let Ok(address) = <[u8; 4]>::try_from(name.value)
-                {
-                    return Some(address);
-                }
-            }
-        })
+        // iPAddress [7], an OCTET STRING: 4 bytes for IPv4.
+        self.alt_names().filter(|name| name.tag == 0x87).filter_map(|name| <[u8; 4]>::try_from(name.value).ok())
     }
 }
 
