@@ -128,7 +128,7 @@ fn run(
         }
     };
     // The command line's settings are the factory settings; saved ones override them.
-    let mut loaded = embassy_futures::block_on(store.load(&options.settings));
+    let loaded = embassy_futures::block_on(store.load(&options.settings));
     match &options.state {
         Some(path) => log::info!("settings: kept in {} ({:?})", path.display(), loaded.status),
         None => log::info!("settings: kept in memory (no --state): changes last until hal-sim exits"),
@@ -141,8 +141,6 @@ fn run(
     // executor runs, so without the flash's time).
     let address = settings.network.address.map(|cidr| cidr.address);
     let tls = secure::configure(&mut store, &settings, options.mac, address, client_ca.as_deref());
-    // What the store holds now, the identity's records included.
-    loaded.status = store.status();
     // Saves from now on run in the executor and take the flash's time.
     store.flash().start_timing();
     let (stack, runner, settings) =

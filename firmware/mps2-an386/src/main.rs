@@ -89,7 +89,7 @@ fn main() -> ! {
     // store the factory settings.
     #[cfg(feature = "http")]
     #[allow(unused_mut, reason = "the TLS identity's records are saved into it (tls)")]
-    let (mut store, mut loaded) = load_settings();
+    let (mut store, loaded) = load_settings();
     #[cfg(feature = "http")]
     let settings = loaded.settings;
     #[cfg(not(feature = "http"))]
@@ -105,9 +105,7 @@ fn main() -> ! {
         let address = settings.network.address.map(|cidr| cidr.address);
         let Some(arena) = tls::arena() else { fail("TLS arena", "taken twice") };
         let started = adapter::identity::start(&mut store, &settings, mac, address, arena, tls::entropy, None);
-        let tls = embassy_futures::block_on(started);
-        loaded.status = store.status();
-        tls
+        embassy_futures::block_on(started)
     };
     let (stack, runner, settings) = program::network(ethernet, settings, mac, seed);
     let program = program::build(Board {

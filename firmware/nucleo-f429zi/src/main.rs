@@ -97,7 +97,7 @@ async fn start(spawner: Spawner) {
     // near the watchdog's shortest period, 1.36 s).
     #[cfg(feature = "http")]
     #[allow(unused_mut, reason = "the TLS identity's records are saved into it (tls)")]
-    let (mut store, mut loaded) = board.tasks.block_on(http::load(board.flash.settings, board.factory_reset));
+    let (mut store, loaded) = board.tasks.block_on(http::load(board.flash.settings, board.factory_reset));
     #[cfg(feature = "http")]
     http::install_rng(board.rng);
     #[cfg(feature = "http")]
@@ -113,9 +113,7 @@ async fn start(spawner: Spawner) {
         let address = settings.network.address.map(|cidr| cidr.address);
         let Some(arena) = tls::arena() else { defmt::panic!("the TLS arena, taken twice") };
         let started = adapter::identity::start(&mut store, &settings, board.mac, address, arena, http::entropy, None);
-        let tls = board.tasks.block_on(started);
-        loaded.status = store.status();
-        tls
+        board.tasks.block_on(started)
     };
     let (stack, runner, settings) = program::network(board.ethernet, settings, board.mac, board.seed);
     let program = program::build(Board {

@@ -165,12 +165,13 @@ impl<F: NorFlash, P: Platform> core::fmt::Debug for Controller<'_, F, P> {
 
 impl<'a, F: NorFlash, P: Platform> Controller<'a, F, P> {
     /// The service over `store` as `loaded` found it, with the server (and
-    /// its device) built from `loaded.settings`.
+    /// its device) built from `loaded.settings`. The storage's status is the
+    /// store's now (records saved since the load, the TLS identity's, count).
     pub fn new(server: &'a Server<'a, Device<'a>>, platform: P, store: Store<F>, loaded: &Loaded) -> Self {
         let state = State {
             settings: loaded.settings,
             password: loaded.password,
-            storage: loaded.status,
+            storage: store.status(),
             first_password_until: Instant::now() + FIRST_PASSWORD_WINDOW,
         };
         Self {
