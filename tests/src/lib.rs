@@ -11,6 +11,7 @@ pub mod hal_sim;
 pub mod mdns;
 pub mod netns;
 pub mod qemu;
+pub mod tls;
 pub mod update;
 
 use std::future::Future;

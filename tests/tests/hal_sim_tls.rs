@@ -7,86 +7,29 @@
 //! Needs root (a namespace), python3 with pymodbus, and openssl; fails
 //! loudly without them.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 
-use serde_json::Value;
 use system_tests::hal_sim::HalSim;
 use system_tests::netns::DEVICE_IP;
+use system_tests::tls::{device_certificate, fixture, fixtures, pymodbus, require_tools};
 use system_tests::update::test_dir;
 use tokio_modbus::prelude::*;
-
-/// The tls crate's certificates and keys.
-fn fixtures() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/tls/tests/fixtures")
-}
-
-fn fixture(name: &str) -> String {
-    fixtures().join(name).to_str().expect("a UTF-8 path").to_owned()
-}
-
-fn require_tools() {
-    let probe = Command::new("python3").args(["-c", "import pymodbus"]).output();
-    assert!(
-        probe.as_ref().is_ok_and(|o| o.status.success()),
-        "this test needs python3 with pymodbus: `pip install pymodbus` ({probe:?})"
-    );
-    let openssl = Command::new("openssl").arg("version").output();
-    assert!(openssl.is_ok_and(|o| o.status.success()), "this test needs openssl (scripts/setup installs it)");
-}
-
-/// The device's certificate, as an operator's handshake shows it, in a
-/// file for the clients to trust.
-fn device_certificate(sim: &HalSim, dir: &Path) -> PathBuf {
-    let output = sim
-        .ns()
-        .command("openssl")
-        .args(["s_client", "-connect", &format!("{DEVICE_IP}:802"), "-showcerts"])
-        .args(["-cert", &fixture("operator.pem"), "-key", &fixture("operator.key")])
-        .stdin(Stdio::null())
-        .output()
-        .expect("openssl runs");
-    let text = String::from_utf8_lossy(&output.stdout);
-    let begin = text.find("-----BEGIN CERTIFICATE-----").unwrap_or_else(|| panic!("no certificate shown:\n{text}"));
-    let end = text[begin..].find("-----END CERTIFICATE-----").expect("a whole PEM block") + begin + 25;
-    let path = dir.join("device.pem");
-    std::fs::write(&path, format!("{}\n", &text[begin..end])).unwrap();
-    path
-}
-
-/// pymodbus with `cert`/`key` (`None`: no client certificate).
-fn pymodbus(sim: &HalSim, client: Option<(&str, &str)>, server_cert: &Path) -> Value {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("peers/pymodbus_tls.py");
-    let (cert, key) = client.map_or(("-".to_owned(), "-".to_owned()), |(c, k)| (fixture(c), fixture(k)));
-    let output = sim
-        .ns()
-        .command("python3")
-        .arg(&script)
-        .args([DEVICE_IP, "802", &cert, &key])
-        .arg(server_cert)
-        .output()
-        .expect("python3 runs");
-    let stdout = String::from_utf8_lossy(&output.stdout);
-    serde_json::from_str(stdout.trim()).unwrap_or_else(|e| {
-        panic!("pymodbus_tls.py printed no JSON ({e}):\n{stdout}\n{}", String::from_utf8_lossy(&output.stderr))
-    })
-}
 
 #[test]
 fn roles_give_rights_on_802_and_other_clients_get_no_session() {
     require_tools();
     let sim = HalSim::start(&["--robot", "idle", "--client-ca", &fixture("client-ca.pem")]);
     let dir = test_dir("hal-sim-tls");
-    let server_cert = device_certificate(&sim, &dir);
+    let server_cert = device_certificate(sim.ns(), &dir);
 
     // An operator reads and writes, over a verified server certificate.
-    let operator = pymodbus(&sim, Some(("operator.pem", "operator.key")), &server_cert);
+    let operator = pymodbus(sim.ns(), Some(("operator.pem", "operator.key")), &server_cert);
     assert_eq!(operator["connected"], true, "{operator}");
     assert_eq!(operator["read"].as_array().map(Vec::len), Some(4), "{operator}");
     assert_eq!(operator["write"], "ok", "{operator}");
 
     // A viewer reads; its write gets exception 01 (Illegal Function).
-    let viewer = pymodbus(&sim, Some(("viewer.pem", "viewer.key")), &server_cert);
+    let viewer = pymodbus(sim.ns(), Some(("viewer.pem", "viewer.key")), &server_cert);
     assert_eq!(viewer["read"].as_array().map(Vec::len), Some(4), "{viewer}");
     assert_eq!(viewer["write"], serde_json::json!({"exception": 1}), "{viewer}");
 
@@ -96,7 +39,7 @@ fn roles_give_rights_on_802_and_other_clients_get_no_session() {
         (Some(("stranger.pem", "stranger.key")), "another CA"),
         (None, "no certificate"),
     ] {
-        let refused = pymodbus(&sim, client, &server_cert);
+        let refused = pymodbus(sim.ns(), client, &server_cert);
         assert!(!refused["read"].is_array(), "{what}: {refused}");
         assert_ne!(refused["write"], "ok", "{what}: {refused}");
     }
@@ -178,8 +121,8 @@ fn a_client_ca_installed_through_the_api_opens_802_after_a_restart() {
     sim.restart();
     let tls = sim.get("/api/tls").json();
     assert_eq!(tls["device"]["sha256"], fingerprint.as_str(), "the same certificate after a restart: {tls}");
-    let server_cert = device_certificate(&sim, &dir);
-    let operator = pymodbus(&sim, Some(("operator.pem", "operator.key")), &server_cert);
+    let server_cert = device_certificate(sim.ns(), &dir);
+    let operator = pymodbus(sim.ns(), Some(("operator.pem", "operator.key")), &server_cert);
     assert_eq!(operator["write"], "ok", "{operator}");
 
     // Removed: 802 closed again after a restart.
@@ -190,6 +133,6 @@ fn a_client_ca_installed_through_the_api_opens_802_after_a_restart() {
     assert_eq!(reply.status, 200, "{}", reply.body);
     assert!(reply.json()["client_ca"].is_null(), "{}", reply.body);
     sim.restart();
-    let operator = pymodbus(&sim, Some(("operator.pem", "operator.key")), &server_cert);
+    let operator = pymodbus(sim.ns(), Some(("operator.pem", "operator.key")), &server_cert);
     assert!(!operator["read"].is_array(), "802 serves no one without a CA: {operator}");
 }

@@ -5,7 +5,6 @@
 //! exception 01, and a certificate from another CA gets no session.
 //! Needs root, QEMU, python3 with pymodbus and openssl.
 
-use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::time::Duration;
 
@@ -13,11 +12,8 @@ use serde_json::Value;
 use system_tests::OWNER_PASSWORD;
 use system_tests::netns::DEVICE_IP;
 use system_tests::qemu::{self, Qemu};
+use system_tests::tls::{device_certificate, fixture, pymodbus, require_tools};
 use system_tests::update::test_dir;
-
-fn fixture(name: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/tls/tests/fixtures").join(name).to_str().unwrap().to_owned()
-}
 
 /// curl in the namespace: body and status.
 fn curl(qemu: &Qemu, args: &[&str]) -> (u16, String) {
@@ -35,42 +31,9 @@ fn curl(qemu: &Qemu, args: &[&str]) -> (u16, String) {
     (status.trim().parse().unwrap_or(0), body.to_owned())
 }
 
-fn device_certificate(qemu: &Qemu, dir: &Path) -> PathBuf {
-    let output = qemu
-        .ns()
-        .unwrap()
-        .command("openssl")
-        .args(["s_client", "-connect", &format!("{DEVICE_IP}:802"), "-showcerts"])
-        .args(["-cert", &fixture("operator.pem"), "-key", &fixture("operator.key")])
-        .stdin(Stdio::null())
-        .output()
-        .expect("openssl runs");
-    let text = String::from_utf8_lossy(&output.stdout);
-    let begin = text.find("-----BEGIN CERTIFICATE-----").unwrap_or_else(|| panic!("no certificate:\n{text}"));
-    let end = text[begin..].find("-----END CERTIFICATE-----").unwrap() + begin + 25;
-    let path = dir.join("device.pem");
-    std::fs::write(&path, format!("{}\n", &text[begin..end])).unwrap();
-    path
-}
-
-fn pymodbus(qemu: &Qemu, cert: &str, key: &str, server_cert: &Path) -> Value {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("peers/pymodbus_tls.py");
-    let output = qemu
-        .ns()
-        .unwrap()
-        .command("python3")
-        .arg(&script)
-        .args([DEVICE_IP, "802", &fixture(cert), &fixture(key)])
-        .arg(server_cert)
-        .output()
-        .expect("python3 runs");
-    let stdout = String::from_utf8_lossy(&output.stdout);
-    serde_json::from_str(stdout.trim())
-        .unwrap_or_else(|e| panic!("no JSON ({e}):\n{stdout}\n{}", String::from_utf8_lossy(&output.stderr)))
-}
-
 #[test]
 fn an_operator_reads_and_writes_on_802_and_a_viewer_only_reads() {
+    require_tools();
     let dir = test_dir("qemu-tls");
     let state = dir.join("psram.state");
     qemu::erased_state(&state).unwrap();
@@ -96,14 +59,14 @@ fn an_operator_reads_and_writes_on_802_and_a_viewer_only_reads() {
     // Second boot: 802 serves the plant's clients.
     let qemu = Qemu::tap_with_state(&state);
     qemu.wait_for_log(&format!("Modbus TCP server at {DEVICE_IP}:502"), Duration::from_secs(60));
-    let server_cert = device_certificate(&qemu, &dir);
-    let operator = pymodbus(&qemu, "operator.pem", "operator.key", &server_cert);
+    let server_cert = device_certificate(qemu.ns().unwrap(), &dir);
+    let operator = pymodbus(qemu.ns().unwrap(), Some(("operator.pem", "operator.key")), &server_cert);
     assert_eq!(operator["read"].as_array().map(Vec::len), Some(4), "{operator}");
     assert_eq!(operator["write"], "ok", "{operator}");
-    let viewer = pymodbus(&qemu, "viewer.pem", "viewer.key", &server_cert);
+    let viewer = pymodbus(qemu.ns().unwrap(), Some(("viewer.pem", "viewer.key")), &server_cert);
     assert_eq!(viewer["read"].as_array().map(Vec::len), Some(4), "{viewer}");
     assert_eq!(viewer["write"], serde_json::json!({"exception": 1}), "{viewer}");
-    let stranger = pymodbus(&qemu, "stranger.pem", "stranger.key", &server_cert);
+    let stranger = pymodbus(qemu.ns().unwrap(), Some(("stranger.pem", "stranger.key")), &server_cert);
     assert!(!stranger["read"].is_array(), "{stranger}");
     let (_, status) = curl(&qemu, &[&url("/api/status")]);
     let status: Value = serde_json::from_str(&status).unwrap();

@@ -1,0 +1,68 @@
+//! What the Modbus/TCP Security tests share (hal_sim_tls, qemu_tls): the
+//! tls crate's test certificates, the device's certificate as a handshake
+//! shows it, and pymodbus's TLS client (tests/peers/pymodbus_tls.py), all
+//! run inside the device's namespace.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+
+use serde_json::Value;
+
+use crate::netns::{DEVICE_IP, Namespace};
+
+/// The tls crate's certificates and keys.
+pub fn fixtures() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/tls/tests/fixtures")
+}
+
+/// One of them, as a path for a command line.
+pub fn fixture(name: &str) -> String {
+    fixtures().join(name).to_str().expect("a UTF-8 path").to_owned()
+}
+
+/// Fails loudly unless python3 with pymodbus and openssl are there.
+pub fn require_tools() {
+    let probe = Command::new("python3").args(["-c", "import pymodbus"]).output();
+    assert!(
+        probe.as_ref().is_ok_and(|o| o.status.success()),
+        "this test needs python3 with pymodbus: `pip install pymodbus` ({probe:?})"
+    );
+    let openssl = Command::new("openssl").arg("version").output();
+    assert!(openssl.is_ok_and(|o| o.status.success()), "this test needs openssl (scripts/setup installs it)");
+}
+
+/// The device's certificate, as an operator's handshake on 802 shows it,
+/// in a file in `dir` for the clients to trust.
+pub fn device_certificate(ns: &Namespace, dir: &Path) -> PathBuf {
+    let output = ns
+        .command("openssl")
+        .args(["s_client", "-connect", &format!("{DEVICE_IP}:802"), "-showcerts"])
+        .args(["-cert", &fixture("operator.pem"), "-key", &fixture("operator.key")])
+        .stdin(Stdio::null())
+        .output()
+        .expect("openssl runs");
+    let text = String::from_utf8_lossy(&output.stdout);
+    let begin = text.find("-----BEGIN CERTIFICATE-----").unwrap_or_else(|| panic!("no certificate shown:\n{text}"));
+    let end = text[begin..].find("-----END CERTIFICATE-----").expect("a whole PEM block") + begin + 25;
+    let path = dir.join("device.pem");
+    std::fs::write(&path, format!("{}\n", &text[begin..end])).unwrap();
+    path
+}
+
+/// pymodbus's TLS client on 802 with `client`'s certificate and key
+/// (`None`: none), trusting `server_cert`: what it read and wrote.
+pub fn pymodbus(ns: &Namespace, client: Option<(&str, &str)>, server_cert: &Path) -> Value {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("peers/pymodbus_tls.py");
+    let (cert, key) = client.map_or(("-".to_owned(), "-".to_owned()), |(c, k)| (fixture(c), fixture(k)));
+    let output = ns
+        .command("python3")
+        .arg(&script)
+        .args([DEVICE_IP, "802", &cert, &key])
+        .arg(server_cert)
+        .output()
+        .expect("python3 runs");
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    serde_json::from_str(stdout.trim()).unwrap_or_else(|e| {
+        panic!("pymodbus_tls.py printed no JSON ({e}):\n{stdout}\n{}", String::from_utf8_lossy(&output.stderr))
+    })
+}
