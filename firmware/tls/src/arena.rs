@@ -3,6 +3,11 @@
 //! board's named constant. When it is full, `calloc` returns null and Mbed
 //! TLS fails what it was doing (`MBEDTLS_ERR_SSL_ALLOC_FAILED`, a refused
 //! handshake); nothing panics and nothing resets.
+//!
+//! The arena may be made of up to [`MAX_REGIONS`] separate regions (the
+//! NUCLEO's CCM RAM and a part of its SRAM): a block is taken from the
+//! first region with room for it, first fit, and given back to the region
+//! that holds it. A block never spans two regions.
 
 use core::alloc::Layout;
 use core::cell::RefCell;
@@ -16,9 +21,13 @@ use linked_list_allocator::Heap;
 /// took; this keeps the payload aligned for any C type.
 const HEADER: usize = 16;
 
+/// The most regions an arena is made of.
+pub const MAX_REGIONS: usize = 2;
+
 /// The arena and what it has handed out.
 struct Arena {
-    heap: Heap,
+    /// Its regions, each with its start address and length (unused: empty).
+    regions: [(Heap, usize, usize); MAX_REGIONS],
     /// Bytes handed out now, and at most since [`init`] or [`reset_peak`].
     used: usize,
     peak: usize,
@@ -42,22 +51,34 @@ pub struct Usage {
     pub refused: u32,
 }
 
-/// Hands `memory` to Mbed TLS as its arena. Called once, by [`crate::init`].
-pub(crate) fn init(memory: &'static mut [u8]) {
-    let size = memory.len();
-    let mut heap = Heap::empty();
-    // SAFETY: `memory` is 'static and exclusively ours from here on: the
-    // heap is its only user.
-    unsafe { heap.init(memory.as_mut_ptr(), size) };
+/// Hands `memory`'s regions to Mbed TLS as its arena. Called once, by
+/// [`crate::init`]; `false` (and no arena) when there are more than
+/// [`MAX_REGIONS`] of them.
+pub(crate) fn init(memory: impl IntoIterator<Item = &'static mut [u8]>) -> bool {
+    let mut regions = [const { (Heap::empty(), 0, 0) }; MAX_REGIONS];
+    let mut slots = regions.iter_mut();
+    for region in memory {
+        let Some((heap, start, len)) = slots.next() else { return false };
+        (*start, *len) = (region.as_mut_ptr() as usize, region.len());
+        // SAFETY: `region` is 'static and exclusively ours from here on:
+        // the heap is its only user.
+        unsafe { heap.init(region.as_mut_ptr(), region.len()) };
+    }
     critical_section::with(|cs| {
-        *ARENA.borrow_ref_mut(cs) = Some(Arena { heap, used: 0, peak: 0, refused: 0 });
+        *ARENA.borrow_ref_mut(cs) = Some(Arena { regions, used: 0, peak: 0, refused: 0 });
     });
+    true
 }
 
 /// The arena's size and use.
 pub fn usage() -> Usage {
     critical_section::with(|cs| match ARENA.borrow_ref(cs).as_ref() {
-        Some(arena) => Usage { size: arena.heap.size(), used: arena.used, peak: arena.peak, refused: arena.refused },
+        Some(arena) => Usage {
+            size: arena.regions.iter().map(|(heap, ..)| heap.size()).sum(),
+            used: arena.used,
+            peak: arena.peak,
+            refused: arena.refused,
+        },
         None => Usage::default(),
     })
 }
@@ -82,13 +103,14 @@ pub(crate) unsafe extern "C" fn calloc(count: usize, size: usize) -> *mut c_void
     let block = critical_section::with(|cs| {
         let mut arena = ARENA.borrow_ref_mut(cs);
         let arena = arena.as_mut()?;
-        match arena.heap.allocate_first_fit(layout) {
-            Ok(block) => {
+        let taken = arena.regions.iter_mut().find_map(|(heap, ..)| heap.allocate_first_fit(layout).ok());
+        match taken {
+            Some(block) => {
                 arena.used += layout.size();
                 arena.peak = arena.peak.max(arena.used);
                 Some(block)
             }
-            Err(()) => {
+            None => {
                 arena.refused = arena.refused.saturating_add(1);
                 None
             }
@@ -118,9 +140,14 @@ pub(crate) unsafe extern "C" fn free(data: *mut c_void) {
     };
     let (Some(block), Some(layout)) = (NonNull::new(block), layout(payload)) else { return };
     critical_section::with(|cs| {
-        if let Some(arena) = ARENA.borrow_ref_mut(cs).as_mut() {
-            // SAFETY: the block and its layout are the ones `calloc` took.
-            unsafe { arena.heap.deallocate(block, layout) };
+        let mut arena = ARENA.borrow_ref_mut(cs);
+        let Some(arena) = arena.as_mut() else { return };
+        let at = block.as_ptr() as usize;
+        let region = arena.regions.iter_mut().find(|(_, start, len)| (*start..start + len).contains(&at));
+        if let Some((heap, ..)) = region {
+            // SAFETY: the block and its layout are the ones `calloc` took
+            // from this region.
+            unsafe { heap.deallocate(block, layout) };
             arena.used = arena.used.saturating_sub(layout.size());
         }
     });

@@ -110,10 +110,14 @@ pub(crate) fn check(status: i32) -> Result<(), Error> {
     }
 }
 
-/// Gives Mbed TLS its arena and its entropy source: once, before anything
-/// else here. Fails when the source gives no entropy or PSA cannot start.
-pub fn init(arena: &'static mut [u8], entropy: Entropy) -> Result<(), Error> {
-    arena::init(arena);
+/// Gives Mbed TLS its arena (one region, or up to [`arena::MAX_REGIONS`])
+/// and its entropy source: once, before anything else here. Fails when
+/// there are too many regions, the source gives no entropy or PSA cannot
+/// start.
+pub fn init(arena: impl IntoIterator<Item = &'static mut [u8]>, entropy: Entropy) -> Result<(), Error> {
+    if !arena::init(arena) {
+        return Err(Error::Internal);
+    }
     // SAFETY: plain function pointers with calloc's and free's contracts.
     unsafe { sys::mbedtls_platform_set_calloc_free(Some(arena::calloc), Some(arena::free)) };
     if !rng::init(entropy) {

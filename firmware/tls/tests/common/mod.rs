@@ -26,11 +26,16 @@ pub fn os_entropy(buf: &mut [u8]) -> bool {
 /// `tls::init` once per process, with an arena of `arena_len` bytes;
 /// the tests of one binary take the arena one at a time.
 pub fn init(arena_len: usize) -> MutexGuard<'static, ()> {
+    init_regions(&[arena_len])
+}
+
+/// [`init`] with an arena of separate regions of these lengths.
+pub fn init_regions(lens: &[usize]) -> MutexGuard<'static, ()> {
     static INIT: Once = Once::new();
     static SERIAL: Mutex<()> = Mutex::new(());
     INIT.call_once(|| {
-        let arena = Box::leak(vec![0u8; arena_len].into_boxed_slice());
-        tls::init(arena, os_entropy).unwrap();
+        let regions = lens.iter().map(|&len| -> &'static mut [u8] { Box::leak(vec![0u8; len].into_boxed_slice()) });
+        tls::init(regions, os_entropy).unwrap();
     });
     SERIAL.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
 }
