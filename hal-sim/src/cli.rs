@@ -18,7 +18,7 @@ pub const MAX_BUSY_POLL_US: u64 = 1_000;
 /// The first lines of the usage text; the settings follow, from the table.
 const USAGE_HEAD: &str = "\
 usage: hal-sim --tap NAME [--control PATH] [--robot demo|idle] [--state FILE] [--http-port N]
-               [--mac MAC] [--client-ca FILE] [--busy-poll US] [SETTING VALUE]...
+               [--https-port N] [--mac MAC] [--client-ca FILE] [--busy-poll US] [SETTING VALUE]...
 
   --tap NAME            the TAP interface to run on (made beforehand with
                         `ip tuntap add dev NAME mode tap user $USER`, or by hal-sim as root)
@@ -27,6 +27,7 @@ usage: hal-sim --tap NAME [--control PATH] [--robot demo|idle] [--state FILE] [-
   --state FILE          the settings flash, kept in FILE (64 KiB; made when missing); without it,
                         settings saved through the HTTP API last until hal-sim exits
   --http-port N         the HTTP API's port, 1-65535, or 0 for none (default 80)
+  --https-port N        HTTPS's port (the page and the API), 1-65535, or 0 for none (default 443)
   --mac MAC             the device's MAC, six hex bytes such as 02:4d:42:53:49:4d (unicast; the
                         default), so that several hal-sims share a network; the default name
                         (mbio- and its last 3 bytes) follows it
@@ -83,6 +84,8 @@ pub struct Options {
     pub client_ca: Option<PathBuf>,
     /// The HTTP API's port (`None`: no HTTP).
     pub http_port: Option<u16>,
+    /// HTTPS's port (`None`: no HTTPS).
+    pub https_port: Option<u16>,
     /// How long the loop polls without blocking before it sleeps, in
     /// microseconds (0: never; at most [`MAX_BUSY_POLL_US`]).
     pub busy_poll_us: u64,
@@ -122,6 +125,7 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
     let mut robot = None;
     let mut state = None;
     let mut http_port = None;
+    let mut https_port = None;
     let mut busy_poll = None;
     let mut mac = None;
     let mut client_ca = None;
@@ -145,6 +149,7 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
             "--robot" => Target::Own(&mut robot),
             "--state" => Target::Own(&mut state),
             "--http-port" => Target::Own(&mut http_port),
+            "--https-port" => Target::Own(&mut https_port),
             "--busy-poll" => Target::Own(&mut busy_poll),
             "--mac" => Target::Own(&mut mac),
             "--client-ca" => Target::Own(&mut client_ca),
@@ -180,22 +185,19 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
         let reasons: Vec<String> = errors.iter().map(|(field, rule)| format!("`--{}` {rule}", field.flag())).collect();
         return error(reasons.join("; "));
     }
-    let http_port = match http_port.as_deref().map(str::parse::<u16>) {
-        None => Some(adapter::http::HTTP_PORT),
-        Some(Ok(0)) => None,
-        Some(Ok(port)) => Some(port),
-        Some(Err(_)) => {
-            return error(format!(
-                "`--http-port` must be 1-65535, or 0 for none, not `{}`",
-                http_port.unwrap_or_default()
-            ));
+    let http_port = port_option("--http-port", http_port.as_deref(), adapter::http::HTTP_PORT)?;
+    let https_port = port_option("--https-port", https_port.as_deref(), adapter::http::HTTPS_PORT)?;
+    for (flag, port) in [("--http-port", http_port), ("--https-port", https_port)] {
+        if port == Some(settings.modbus.port) {
+            let modbus = settings.modbus.port;
+            return error(format!("`{flag}` and `--port` are both {modbus}: give them different ports"));
         }
-    };
-    if http_port == Some(settings.modbus.port) {
-        return error(format!(
-            "`--http-port` and `--port` are both {}: give them different ports",
-            settings.modbus.port
-        ));
+        if port == Some(adapter::server::secure::SECURE_PORT) {
+            return error(format!("`{flag}` may not be 802, Modbus/TCP Security's port"));
+        }
+    }
+    if http_port.is_some() && http_port == https_port {
+        return error("`--http-port` and `--https-port` are the same port: give them different ones");
     }
     let busy_poll_us = match busy_poll.as_deref().map(str::parse::<u64>) {
         None => 0,
@@ -224,10 +226,21 @@ pub fn parse(args: impl IntoIterator<Item = String>) -> Result<Action, UsageErro
         mac,
         client_ca: client_ca.map(PathBuf::from),
         http_port,
+        https_port,
         busy_poll_us,
         settings,
     };
     Ok(Action::Run(Box::new(options)))
+}
+
+/// A port option's value: `default` when not given, `None` for 0.
+fn port_option(flag: &str, value: Option<&str>, default: u16) -> Result<Option<u16>, UsageError> {
+    match value.map(str::parse::<u16>) {
+        None => Ok(Some(default)),
+        Some(Ok(0)) => Ok(None),
+        Some(Ok(port)) => Ok(Some(port)),
+        Some(Err(_)) => error(format!("`{flag}` must be 1-65535, or 0 for none, not `{}`", value.unwrap_or_default())),
+    }
 }
 
 /// `aa:bb:cc:dd:ee:ff`, a unicast MAC (the first byte's lowest bit clear).

@@ -156,6 +156,7 @@ fn run(
         loaded,
         platform: SimPlatform::new(stack, settings.network.mode, options.mac),
         http_port: options.http_port,
+        https_port: options.https_port,
         tls,
     });
     let board: &'static SimBoard =
@@ -214,9 +215,19 @@ fn start(
         spawner.spawn(control::accept_task(spawner, listener, board, program.control)?);
     }
     spawner.spawn(platform::reboot_task(args)?);
-    let tls_open = program.tls.is_some() && program.settings.tls.modbus;
-    spawner.spawn(ready_task(program.stack, program.server, program.settings, tls_open, options)?);
+    let tls = Open {
+        modbus: program.tls.modbus.is_some() && program.settings.tls.modbus,
+        https: program.tls.https.is_some(),
+    };
+    spawner.spawn(ready_task(program.stack, program.server, program.settings, tls, options)?);
     Ok(())
+}
+
+/// Which TLS services started.
+#[derive(Clone, Copy)]
+struct Open {
+    modbus: bool,
+    https: bool,
 }
 
 /// Prints the one line that says hal-sim is ready, once the address is up.
@@ -225,7 +236,7 @@ async fn ready_task(
     stack: Stack<'static>,
     server: &'static ModbusServer,
     settings: &'static Settings,
-    tls_open: bool,
+    tls: Open,
     options: &'static Options,
 ) {
     stack.wait_config_up().await;
@@ -246,12 +257,17 @@ async fn ready_task(
         Some(port) => log::info!("http api on port {port}"),
         None => log::info!("http api off (--http-port 0)"),
     }
+    match (tls.https, options.https_port) {
+        (true, Some(port)) => log::info!("https on port {port}"),
+        (false, Some(_)) => log::warn!("https off: TLS did not start"),
+        (_, None) => log::info!("https off (--https-port 0)"),
+    }
     let address = stack.config_v4().map(|v4| v4.address.address());
     let address = address.map_or_else(|| "?".to_owned(), |address| address.to_string());
     if settings.tls.plain_modbus {
         println!("hal-sim: modbus tcp listening on {address}:{} (tap {})", config.port, options.tap);
     }
-    if tls_open {
+    if tls.modbus {
         println!(
             "hal-sim: modbus/tcp security listening on {address}:{} (tap {})",
             adapter::server::secure::SECURE_PORT,

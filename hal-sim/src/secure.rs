@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use adapter::server::secure::ARENA_LEN;
+use adapter::program::TLS_ARENA_LEN;
 use adapter::settings::Settings;
 use adapter::storage::Store;
 use embedded_storage_async::nor_flash::NorFlash;
@@ -37,8 +37,8 @@ pub fn configure<F: NorFlash>(
     mac: [u8; 6],
     address: Option<[u8; 4]>,
     factory_ca: Option<&[u8]>,
-) -> Option<&'static adapter::tls::Server> {
-    let arena: &'static mut [u8] = Box::leak(vec![0u8; ARENA_LEN].into_boxed_slice());
-    let started = adapter::identity::start(store, settings, mac, address, arena, os_entropy, factory_ca);
+) -> adapter::identity::Servers {
+    let arena: &'static mut [u8] = Box::leak(vec![0u8; TLS_ARENA_LEN].into_boxed_slice());
+    let started = adapter::identity::start(store, settings, mac, address, [arena], os_entropy, factory_ca);
     embassy_futures::block_on(started)
 }

@@ -76,29 +76,36 @@ impl core::fmt::Display for Error {
     }
 }
 
-/// Starts TLS for a program: the arena and the entropy source, the
-/// identity from `store` (made and saved when new), and port 802's
-/// configuration, which `Board::tls` takes. `None`, with the reason
-/// logged, when `tls.modbus` is off, no client CA is installed (nor a
-/// `factory_ca` given, as hal-sim's `--client-ca`), or TLS cannot start.
-/// Once, before the program is built; `address` is the static address the
-/// device starts with, if any (its certificate names it).
+/// The TLS configurations a program serves with (`Board::tls`).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Servers {
+    /// Port 802's: the device's credentials and the client CA; `None`:
+    /// 802 stays closed.
+    pub modbus: Option<&'static tls::Server>,
+    /// HTTPS's: the device's credentials; `None`: no HTTPS.
+    pub https: Option<&'static tls::Server>,
+}
+
+/// Starts TLS for a program: the arena (its regions) and the entropy
+/// source, the identity from `store` (made and saved when new), and the
+/// configurations of HTTPS and of port 802. Port 802's is `None`, with
+/// the reason logged, when `tls.modbus` is off or no client CA is
+/// installed (nor a `factory_ca` given, as hal-sim's `--client-ca`); both
+/// are when TLS cannot start. Once, before the program is built; `address`
+/// is the static address the device starts with, if any (its certificate
+/// names it).
 pub async fn start<F: NorFlash>(
     store: &mut Store<F>,
     settings: &Settings,
     mac: [u8; 6],
     address: Option<[u8; 4]>,
-    arena: &'static mut [u8],
+    arena: impl IntoIterator<Item = &'static mut [u8]>,
     entropy: tls::Entropy,
     factory_ca: Option<&[u8]>,
-) -> Option<&'static tls::Server> {
-    if !settings.tls.modbus {
-        info!("modbus/tcp security off (tls.modbus)");
-        return None;
-    }
+) -> Servers {
     if let Err(e) = tls::init(arena, entropy) {
         warn!("tls: cannot start: {}", e);
-        return None;
+        return Servers::default();
     }
     let name = settings.device.name.or_default(mac);
     let names = Names { name: name.as_str(), address };
@@ -106,25 +113,32 @@ pub async fn start<F: NorFlash>(
         Ok(identity) => identity,
         Err(e) => {
             warn!("tls: no identity: {}", e);
-            return None;
+            return Servers::default();
         }
-    };
-    let Some(client_ca) = identity.client_ca.as_deref().or(factory_ca) else {
-        info!("modbus/tcp security: no client CA installed: port 802 stays closed");
-        return None;
     };
     let key = made::key_der(&identity.key);
-    let credentials = tls::Credentials { certificate: &identity.certificate, key: &key, client_ca: Some(client_ca) };
-    match tls::Server::new(&credentials) {
-        Ok(server) => {
-            static SERVER: StaticCell<tls::Server> = StaticCell::new();
-            Some(&*SERVER.init(server))
-        }
-        Err(e) => {
-            warn!("modbus/tcp security: cannot make its configuration: {}", e);
+    let configure = |client_ca, what| {
+        let credentials = tls::Credentials { certificate: &identity.certificate, key: &key, client_ca };
+        tls::Server::new(&credentials).inspect_err(|e| warn!("{}: cannot make its configuration: {}", what, e)).ok()
+    };
+    static HTTPS: StaticCell<tls::Server> = StaticCell::new();
+    let https = configure(None, "https").map(|server| &*HTTPS.init(server));
+    let client_ca = identity.client_ca.as_deref().or(factory_ca);
+    let modbus = match client_ca {
+        _ if !settings.tls.modbus => {
+            info!("modbus/tcp security off (tls.modbus)");
             None
         }
-    }
+        None => {
+            info!("modbus/tcp security: no client CA installed: port 802 stays closed");
+            None
+        }
+        Some(client_ca) => {
+            static MODBUS: StaticCell<tls::Server> = StaticCell::new();
+            configure(Some(client_ca), "modbus/tcp security").map(|server| &*MODBUS.init(server))
+        }
+    };
+    Servers { modbus, https }
 }
 
 /// Reads the identity from `store`, making (and saving) what is missing:

@@ -5,13 +5,25 @@
 
 /// Sockets a program's stack holds with this build's features: the Modbus
 /// listeners (and with `tls` those of port 802), DHCP's, the HTTP listeners
-/// (`http`), mDNS's (`mdns`) and the robot link's client (`robot-link`).
+/// (`http`; with `tls` HTTPS's too), mDNS's (`mdns`) and the robot link's client (`robot-link`).
 pub const STACK_SOCKETS: usize =
     crate::server::SOCKET_POOL + crate::server::SECURE_POOL + 1 + HTTP_SOCKETS + MDNS_SOCKETS + LINK_SOCKETS;
-#[cfg(feature = "http")]
+#[cfg(all(feature = "http", not(feature = "tls")))]
 const HTTP_SOCKETS: usize = crate::http::MAX_HTTP_CONNECTIONS;
+#[cfg(all(feature = "http", feature = "tls"))]
+const HTTP_SOCKETS: usize = crate::http::MAX_HTTP_CONNECTIONS + crate::http::HTTPS_SOCKETS;
 #[cfg(not(feature = "http"))]
 const HTTP_SOCKETS: usize = 0;
+/// The TLS arena a program gives `identity::start`, as measured on the
+/// host (the tls crate's tests/regions.rs): the two configurations'
+/// certificates and keys (port 802's and HTTPS's: 7 KiB; 8 here), one
+/// handshake at its peak (33 KiB with a client certificate: Mbed TLS's 16
+/// KiB and 4 KiB record buffers and the key exchange; 34 here), and each
+/// other session (up to 29 KiB after a TLS 1.3 handshake with a client
+/// certificate; 30 here). `server::secure::MAX_TLS_SESSIONS` sessions.
+#[cfg(feature = "tls")]
+pub const TLS_ARENA_LEN: usize = (8 + 34 + 30 * (crate::server::secure::MAX_TLS_SESSIONS - 1)) * 1024;
+
 #[cfg(feature = "mdns")]
 const MDNS_SOCKETS: usize = 1;
 #[cfg(not(feature = "mdns"))]
@@ -105,10 +117,12 @@ macro_rules! program {
             /// The HTTP API's port; `None`: no API (its service still runs).
             #[cfg(feature = "http")]
             pub http_port: ::core::option::Option<u16>,
-            /// Modbus/TCP Security's configuration: the device's credentials
-            /// and the client CA; `None`: port 802 stays closed.
+            /// The HTTPS port; `None`: no HTTPS.
+            #[cfg(all(feature = "http", feature = "tls"))]
+            pub https_port: ::core::option::Option<u16>,
+            /// The TLS configurations (`identity::start`): port 802's and HTTPS's.
             #[cfg(feature = "tls")]
-            pub tls: ::core::option::Option<&'static $crate::tls::Server>,
+            pub tls: $crate::identity::Servers,
         }
 
         /// What the program's tasks share, all of it for the life of the program.
@@ -127,7 +141,7 @@ macro_rules! program {
             #[cfg(feature = "http")]
             pub api: ::core::option::Option<&'static Api>,
             #[cfg(feature = "tls")]
-            pub tls: ::core::option::Option<&'static $crate::tls::Server>,
+            pub tls: $crate::identity::Servers,
         }
 
         pub mod program {
@@ -187,7 +201,12 @@ macro_rules! program {
                     static CONTROL: StaticCell<super::Control> = StaticCell::new();
                     let control: &'static super::Control = CONTROL.init(control);
                     static API: StaticCell<super::Api> = StaticCell::new();
-                    let api = board.http_port.map(|port| &*API.init($crate::http::Http::new(control, port)));
+                    let api = board.http_port.map(|port| {
+                        let http = $crate::http::Http::new(control, port);
+                        #[cfg(feature = "tls")]
+                        let http = http.with_secure_port(board.https_port.filter(|_| board.tls.https.is_some()));
+                        &*API.init(http)
+                    });
                     (control, api)
                 };
                 // The name in force: the settings service's (a change takes
@@ -260,7 +279,7 @@ macro_rules! program {
                     }
                 }
                 #[cfg(feature = "tls")]
-                if let Some(tls) = program.tls.filter(|_| settings.tls.modbus) {
+                if let Some(tls) = program.tls.modbus.filter(|_| settings.tls.modbus) {
                     for slot in $crate::server::SOCKET_POOL..$crate::server::SLOT_COUNT {
                         spawner.spawn(tasks::modbus_secure(stack, server, tls, slot)?);
                     }
@@ -269,6 +288,12 @@ macro_rules! program {
                 if let Some(api) = program.api {
                     for _ in 0..$crate::http::MAX_HTTP_CONNECTIONS {
                         spawner.spawn(tasks::http(stack, api)?);
+                    }
+                    #[cfg(feature = "tls")]
+                    if let (Some(tls), Some(port)) = (program.tls.https, api.secure_port()) {
+                        for _ in 0..$crate::http::HTTPS_SOCKETS {
+                            spawner.spawn(tasks::https(stack, api, tls, port)?);
+                        }
                     }
                 }
                 Ok(())
@@ -344,6 +369,18 @@ macro_rules! program {
                 #[::embassy_executor::task(pool_size = $crate::http::MAX_HTTP_CONNECTIONS)]
                 pub async fn http(stack: Stack<'static>, api: &'static super::super::Api) -> ! {
                     $crate::http::listen(stack, api).await
+                }
+
+                /// One HTTPS listener per socket.
+                #[cfg(all(feature = "http", feature = "tls"))]
+                #[::embassy_executor::task(pool_size = $crate::http::HTTPS_SOCKETS)]
+                pub async fn https(
+                    stack: Stack<'static>,
+                    api: &'static super::super::Api,
+                    tls: &'static $crate::tls::Server,
+                    port: u16,
+                ) -> ! {
+                    $crate::http::listen_secure(stack, api, tls, port).await
                 }
 
                 /// Answers mDNS queries for the name in force and the services.

@@ -98,13 +98,13 @@ fn main() -> ! {
     // sequence numbers and ports between boards, so the MAC will do.
     let [a, b, c, d, e, f] = mac;
     let seed = u64::from_le_bytes([a, b, c, d, e, f, 0x4d, 0x42]);
-    // TLS: the identity from the store (made at the first start), port
-    // 802's configuration (docs/tls.md).
+    // TLS: the identity from the store (made at the first start), the
+    // configurations of HTTPS and port 802 (docs/tls.md).
     #[cfg(feature = "tls")]
     let tls = {
         let address = settings.network.address.map(|cidr| cidr.address);
         let Some(arena) = tls::arena() else { fail("TLS arena", "taken twice") };
-        let started = adapter::identity::start(&mut store, &settings, mac, address, arena, tls::entropy, None);
+        let started = adapter::identity::start(&mut store, &settings, mac, address, [arena], tls::entropy, None);
         embassy_futures::block_on(started)
     };
     let (stack, runner, settings) = program::network(ethernet, settings, mac, seed);
@@ -122,6 +122,8 @@ fn main() -> ! {
         platform: platform::Mps2::new(stack, mac, settings.network.mode),
         #[cfg(feature = "http")]
         http_port: Some(adapter::http::HTTP_PORT),
+        #[cfg(all(feature = "http", feature = "tls"))]
+        https_port: Some(adapter::http::HTTPS_PORT),
         #[cfg(feature = "tls")]
         tls,
     });

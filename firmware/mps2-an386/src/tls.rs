@@ -8,12 +8,12 @@
 //! needs: the QEMU image's TLS is for smoke tests of the protocol, never
 //! for protecting anything. The NUCLEO draws from the STM32's RNG.
 
-use adapter::server::secure::ARENA_LEN;
+use adapter::program::TLS_ARENA_LEN;
 use cortex_m::peripheral::SYST;
 use static_cell::ConstStaticCell;
 
 /// The TLS arena: Mbed TLS's only memory handed out at run time (in .bss).
-static ARENA: ConstStaticCell<[u8; ARENA_LEN]> = ConstStaticCell::new([0; ARENA_LEN]);
+static ARENA: ConstStaticCell<[u8; TLS_ARENA_LEN]> = ConstStaticCell::new([0; TLS_ARENA_LEN]);
 
 /// The arena, once (`None` after).
 pub fn arena() -> Option<&'static mut [u8]> {

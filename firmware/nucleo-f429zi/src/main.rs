@@ -105,7 +105,7 @@ async fn start(spawner: Spawner) {
     #[cfg(not(feature = "http"))]
     let settings = SETTINGS;
     // TLS: the identity from the store (made at the first start, from the
-    // hardware RNG), port 802's configuration (docs/tls.md). Blocking, fed,
+    // hardware RNG), the configurations of HTTPS and port 802 (docs/tls.md). Blocking, fed,
     // as the load: a new key's certificate and its two records take a
     // signature and two flash writes.
     #[cfg(feature = "tls")]
@@ -130,6 +130,8 @@ async fn start(spawner: Spawner) {
         platform: http::Nucleo::new(stack, board.mac, settings, board.reset),
         #[cfg(feature = "http")]
         http_port: Some(adapter::http::HTTP_PORT),
+        #[cfg(all(feature = "http", feature = "tls"))]
+        https_port: Some(adapter::http::HTTPS_PORT),
         #[cfg(feature = "tls")]
         tls,
     });

@@ -10,7 +10,7 @@ use super::json::{Malformed, Out, Reader, Str, Value};
 use super::page;
 use super::request::{Incoming, Request};
 use super::response::{Response, Status};
-use super::site;
+use super::site::{self, Scheme};
 use super::{AUTH_FAILURE_DELAY, Action, Http, LOCATE_DURATION, MAX_PASSWORD_LEN, MIN_PASSWORD_LEN, REALM_HEADER};
 use crate::control::{Controller, Platform, Refusal, RobotSource};
 use crate::io::AnalogType;
@@ -118,11 +118,13 @@ pub(super) struct Reply {
     status: Status,
     header: Option<(&'static str, &'static str)>,
     page: bool,
+    /// The response buffer holds a `Location` (a redirect), not a body.
+    location: bool,
 }
 
 impl Reply {
     pub(super) const fn new(status: Status) -> Self {
-        Self { status, header: None, page: false }
+        Self { status, header: None, page: false, location: false }
     }
 
     /// The response: the page, or the JSON in `out` (a 500 if it did not fit).
@@ -134,7 +136,8 @@ impl Reply {
             }
         }
         let (content_type, body) = if self.page { (page::CONTENT_TYPE, page::PAGE) } else { (JSON, out.as_bytes()) };
-        Response { status: self.status, content_type, header: self.header, body }
+        let (location, body) = if self.location { (Some(body), &[][..]) } else { (None, body) };
+        Response { status: self.status, content_type, header: self.header, location, body, keep_alive: false }
     }
 }
 
@@ -149,11 +152,21 @@ fn refusal(out: &mut Out<'_>, status: Status, key: &str, message: &str) -> Reply
     Reply::new(status)
 }
 
-/// One request's view of the API: who is asking.
+/// One request's view of the API: who is asking, and how.
 pub(super) struct Api<'h, 'b, F: NorFlash, P: Platform> {
     pub(super) http: &'h Http<'b, F, P>,
     /// The client's IPv4 address (`None`: not IPv4, never allowed to change things).
     pub(super) peer: Option<[u8; 4]>,
+    pub(super) scheme: Scheme,
+}
+
+/// A request taken: its reply, what is left to do once the reply has gone
+/// out, and whether the connection may carry another request (the request
+/// was read exactly, and the client did not ask to close).
+pub(super) struct Taken {
+    pub(super) reply: Reply,
+    pub(super) action: Option<Action>,
+    pub(super) reusable: bool,
 }
 
 impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
@@ -170,23 +183,33 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
         reader: &mut R,
         deadline: Instant,
         out: &mut Out<'_>,
-    ) -> Result<(Reply, Option<Action>), super::Error> {
+    ) -> Result<Taken, super::Error> {
+        let reusable = incoming.is_exact() && !incoming.request.close && !incoming.request.http10;
         // Before anything else: the request names this device, and does
         // not come from a page of another site.
         let name = crate::net::DeviceName::device_name(self.control());
-        let addressed = site::check_host(&incoming.request, &name).and_then(|()| site::check_origin(&incoming.request));
-        if let Err((status, message)) = addressed {
-            return Ok((refusal(out, status, "request", message), None));
+        let checked = site::check_host(&incoming.request, &name).and_then(|()| match self.http.redirect_port() {
+            Some(port) if self.scheme == Scheme::Http => Err(redirect(&incoming.request, port, out)),
+            _ => site::check_origin(&incoming.request, self.scheme),
+        });
+        if let Err((status, message)) = checked {
+            let reply = if status == Status::PERMANENT_REDIRECT {
+                Reply { location: true, ..Reply::new(status) }
+            } else {
+                refusal(out, status, "request", message)
+            };
+            return Ok(Taken { reply, action: None, reusable: false });
         }
         let routed = route(incoming.request.method, incoming.request.path);
         #[cfg(feature = "update")]
         if routed == Ok(Endpoint::Firmware) {
-            return self.upload(incoming, reader, out).await;
+            let (reply, action) = self.upload(incoming, reader, out).await?;
+            return Ok(Taken { reply, action, reusable: false });
         }
         let request = incoming.body(reader, deadline).await?;
         let mut action = None;
         let reply = self.answer(routed, &request, out, &mut action).await;
-        Ok((reply, action))
+        Ok(Taken { reply, action, reusable })
     }
 
     /// `POST /api/firmware`: the body streamed to the updater, which checks
@@ -273,7 +296,8 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
                 if !page::accepts_gzip(request.accept_encoding) {
                     return refusal(out, Status::NOT_ACCEPTABLE, "request", page::NOT_ACCEPTABLE);
                 }
-                return Reply { status: Status::OK, header: Some(("Content-Encoding", page::ENCODING)), page: true };
+                let reply = Reply::new(Status::OK);
+                return Reply { header: Some(("Content-Encoding", page::ENCODING)), page: true, ..reply };
             }
             Endpoint::Status => {
                 self.status(out);
@@ -1003,4 +1027,24 @@ fn refused_change(out: &mut Out<'_>, refused: Refusal, message: &str) -> Reply {
         Refusal::FirstPasswordClosed => Status::FORBIDDEN,
     };
     refusal(out, status, "request", message)
+}
+
+/// Port 80's answer while `tls.plain_http` is off: 308 to the same path in
+/// HTTPS on `port`, at the host the request named (checked to be this
+/// device first: no redirect elsewhere). The `Location` is written into
+/// `out`; without a `Host` (HTTP/1.0) there is no address to send the
+/// client to, and it is refused (403).
+fn redirect(request: &Request<'_>, port: u16, out: &mut Out<'_>) -> site::Refused {
+    let Some((host, _)) = request.host.and_then(|host| site::split_port(host, Scheme::Http)) else {
+        return (Status::FORBIDDEN, "plain HTTP is off (tls.plain_http): use HTTPS");
+    };
+    out.clear();
+    out.text("https://");
+    out.text(core::str::from_utf8(host).unwrap_or_default());
+    if port != super::HTTPS_PORT {
+        out.text(":");
+        out.number(port);
+    }
+    out.text(request.path);
+    (Status::PERMANENT_REDIRECT, "")
 }

@@ -13,13 +13,19 @@
 //! - [`serve`] answers one connection over any `embedded-io-async` reader
 //!   and writer; [`listen`] accepts connections on an embassy-net stack
 //!   and serves them, one task per connection ([`MAX_HTTP_CONNECTIONS`]).
+//! - With `tls`, [`listen_secure`] serves HTTPS on [`HTTPS_PORT`] with the
+//!   device's certificate, request after request on a connection
+//!   ([`serve_kept`]); port 80 then serves in plain too, or, with
+//!   `tls.plain_http` off, only redirects to HTTPS (308).
 //!
 //! HTTP/1.1 framing is this module's own ([`request`], [`response`]): a
 //! head of at most [`MAX_HEAD_LEN`] bytes (431), a body of at most
 //! [`MAX_BODY_LEN`] (413), the whole request within [`REQUEST_TIMEOUT`] of
-//! the connection (408), the response within [`WRITE_TIMEOUT`]. One request per
-//! connection (`Connection: close`): a client holds a connection for
-//! a bounded time, so two slow ones cannot hold the API for long, and the
+//! the connection (408), the response within [`WRITE_TIMEOUT`]. In plain
+//! HTTP, one request per connection (`Connection: close`): a client holds a
+//! connection for a bounded time, so two slow ones cannot hold the API for
+//! long (HTTPS keeps a connection while it is used and no other client
+//! waits: [`serve_kept`]), and the
 //! Modbus sessions never wait for it (no blocking lock is held across an
 //! `.await`, and each request's work is bounded by its size).
 //!
@@ -47,9 +53,12 @@ use embassy_time::{Duration, Instant};
 use embedded_io_async::{ErrorKind, Read, Write};
 use embedded_storage_async::nor_flash::NorFlash;
 
+#[cfg(feature = "tls")]
+pub use listener::{HTTPS_SOCKETS, MAX_HTTPS_SESSIONS, listen_secure};
 pub use listener::{SOCKET_RX_LEN, SOCKET_TX_LEN, listen};
 pub use request::Limit;
 pub use response::Status;
+pub use site::Scheme;
 
 use self::api::Api;
 use self::json::Out;
@@ -58,6 +67,9 @@ use crate::server::SLOT_COUNT;
 
 /// The HTTP port (hal-sim: `--http-port`), which `modbus.port` may not take.
 pub const HTTP_PORT: u16 = 80;
+
+/// The HTTPS port (hal-sim: `--https-port`), with `tls`.
+pub const HTTPS_PORT: u16 = 443;
 
 /// Connections served at once: each board runs this many [`listen`] tasks.
 pub const MAX_HTTP_CONNECTIONS: usize = 2;
@@ -87,6 +99,10 @@ pub const MAX_RESPONSE_LEN: usize = {
 /// The whole request (head and body) must have arrived this long after the
 /// connection was accepted: 408, and the connection closes.
 pub const REQUEST_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// A kept-alive connection (HTTPS) closes when its next request has not
+/// started this long after the last response (the page asks twice a second).
+pub const KEEP_ALIVE_IDLE: Duration = Duration::from_secs(5);
 
 /// The whole response must have been taken by the client this long after
 /// its first byte was written; then the connection closes.
@@ -166,6 +182,17 @@ pub struct Http<'a, F: NorFlash, P: Platform> {
     control: &'a Controller<'a, F, P>,
     port: u16,
     changes: Mutex<CriticalSectionRawMutex, ()>,
+    /// HTTPS's port, once its listeners serve (port 80 may then redirect).
+    #[cfg(feature = "tls")]
+    secure_port: Option<u16>,
+    /// The HTTPS session, one at a time, and the connections waiting for it.
+    #[cfg(feature = "tls")]
+    session: Mutex<CriticalSectionRawMutex, ()>,
+    #[cfg(feature = "tls")]
+    waiting: core::sync::atomic::AtomicUsize,
+    /// Raised when a connection starts waiting for the session.
+    #[cfg(feature = "tls")]
+    arrival: embassy_sync::signal::Signal<CriticalSectionRawMutex, ()>,
 }
 
 impl<F: NorFlash, P: Platform> fmt::Debug for Http<'_, F, P> {
@@ -177,7 +204,68 @@ impl<F: NorFlash, P: Platform> fmt::Debug for Http<'_, F, P> {
 impl<'a, F: NorFlash, P: Platform> Http<'a, F, P> {
     /// The API over `control`, listening on `port` ([`HTTP_PORT`] on the boards).
     pub const fn new(control: &'a Controller<'a, F, P>, port: u16) -> Self {
-        Self { control, port, changes: Mutex::new(()) }
+        Self {
+            control,
+            port,
+            changes: Mutex::new(()),
+            #[cfg(feature = "tls")]
+            secure_port: None,
+            #[cfg(feature = "tls")]
+            session: Mutex::new(()),
+            #[cfg(feature = "tls")]
+            waiting: core::sync::atomic::AtomicUsize::new(0),
+            #[cfg(feature = "tls")]
+            arrival: embassy_sync::signal::Signal::new(),
+        }
+    }
+
+    /// The API with HTTPS on `port` too ([`listen_secure`]'s).
+    #[cfg(feature = "tls")]
+    pub const fn with_secure_port(mut self, port: Option<u16>) -> Self {
+        self.secure_port = port;
+        self
+    }
+
+    /// HTTPS's port, when HTTPS serves.
+    #[cfg(feature = "tls")]
+    pub fn secure_port(&self) -> Option<u16> {
+        self.secure_port
+    }
+
+    /// HTTPS's port when port 80 only redirects to it: HTTPS serves, and
+    /// `tls.plain_http` is off.
+    fn redirect_port(&self) -> Option<u16> {
+        #[cfg(feature = "tls")]
+        return self.secure_port.filter(|_| !self.control.settings().tls.plain_http);
+        #[cfg(not(feature = "tls"))]
+        None
+    }
+
+    /// Whether a kept-alive connection should end after its response:
+    /// another client waits for the HTTPS session, or a Modbus/TCP
+    /// Security client for its seat in the TLS arena.
+    fn yielding(&self) -> bool {
+        #[cfg(feature = "tls")]
+        return self.waiting.load(core::sync::atomic::Ordering::Relaxed) > 0 || crate::server::secure::modbus_waiting();
+        #[cfg(not(feature = "tls"))]
+        false
+    }
+
+    /// Returns once another client waits for the HTTPS session or its seat
+    /// (never without `tls`): a kept-alive connection idle between
+    /// requests then closes at once.
+    async fn someone_waits(&self) {
+        #[cfg(feature = "tls")]
+        {
+            let https = async {
+                while !self.yielding() {
+                    self.arrival.wait().await;
+                }
+            };
+            embassy_futures::select::select(https, crate::server::secure::modbus_wants_a_seat()).await;
+        }
+        #[cfg(not(feature = "tls"))]
+        core::future::pending::<()>().await;
     }
 
     /// The settings service the API makes its changes through.
@@ -219,11 +307,11 @@ impl Buffers {
     }
 }
 
-/// Serves one connection from `peer` (its IPv4 address; `None`: never
-/// allowed to change anything): reads one request from `reader`, writes
-/// its response to `writer`. The caller closes the connection afterwards,
-/// then does the [`Action`] returned, if any ([`Http::perform`]): a
-/// reboot only once its response has gone out.
+/// Serves one plain HTTP connection from `peer` (its IPv4 address;
+/// `None`: never allowed to change anything): reads one request from
+/// `reader`, writes its response to `writer`. The caller closes the
+/// connection afterwards, then does the [`Action`] returned, if any
+/// ([`Http::perform`]): a reboot only once its response has gone out.
 ///
 /// A request that breaks a limit, its deadline or HTTP's grammar is
 /// answered here (431, 413, 408, 400) and returns the [`Error`]; so does a
@@ -231,27 +319,110 @@ impl Buffers {
 pub async fn serve<F: NorFlash, P: Platform, R: Read, W: Write>(
     http: &Http<'_, F, P>,
     peer: Option<[u8; 4]>,
-    mut reader: R,
-    mut writer: W,
+    reader: R,
+    writer: W,
     buffers: &mut Buffers,
 ) -> Result<Option<Action>, Error> {
+    let mut io = Duplex { reader, writer };
+    exchange(http, peer, Scheme::Http, &mut io, buffers, None).await.map(|done| done.action)
+}
+
+/// Serves one connection over `io` as [`serve`] does, but request after
+/// request (HTTP keep-alive), as HTTPS does: a handshake per request would
+/// cost the device far more than the request. The connection ends (and
+/// this returns) when the client closes it or asks to, sends nothing for
+/// [`KEEP_ALIVE_IDLE`], breaks a limit, asks for an [`Action`], or when
+/// another client waits for the session ([`Http::yielding`]).
+pub async fn serve_kept<F: NorFlash, P: Platform, S: Read + Write>(
+    http: &Http<'_, F, P>,
+    peer: Option<[u8; 4]>,
+    scheme: Scheme,
+    io: &mut S,
+    buffers: &mut Buffers,
+) -> Result<Option<Action>, Error> {
+    let mut idle = None;
+    loop {
+        let done = exchange(http, peer, scheme, io, buffers, idle).await?;
+        if !done.kept {
+            return Ok(done.action);
+        }
+        idle = Some(Instant::now() + KEEP_ALIVE_IDLE);
+    }
+}
+
+/// How one request and its response went.
+struct Exchange {
+    /// What the request left to do.
+    action: Option<Action>,
+    /// Whether the connection stays open for another request.
+    kept: bool,
+}
+
+/// One request and its response. `idle`: `None` for a connection's first
+/// request (one request per connection); for a kept-alive connection's
+/// next, by when it must start.
+async fn exchange<F: NorFlash, P: Platform, S: Read + Write>(
+    http: &Http<'_, F, P>,
+    peer: Option<[u8; 4]>,
+    scheme: Scheme,
+    io: &mut S,
+    buffers: &mut Buffers,
+    idle: Option<Instant>,
+) -> Result<Exchange, Error> {
     let Buffers { request: buffer, response: body } = buffers;
     let mut out = Out::new(body);
-    let deadline = Instant::now() + REQUEST_TIMEOUT;
-    let answered = match request::read_head(&mut reader, buffer, deadline).await {
-        Ok(None) => return Ok(None),
-        Ok(Some(incoming)) => Api { http, peer }.take(incoming, &mut reader, deadline, &mut out).await,
+    let deadline = idle.unwrap_or_else(Instant::now) + REQUEST_TIMEOUT;
+    let head = request::read_head(io, buffer, idle, deadline);
+    let head = match idle {
+        // Between requests, a client waiting for the session ends the wait.
+        Some(_) => match embassy_futures::select::select(head, http.someone_waits()).await {
+            embassy_futures::select::Either::First(head) => head,
+            embassy_futures::select::Either::Second(()) => Ok(None),
+        },
+        None => head.await,
+    };
+    let answered = match head {
+        Ok(None) => return Ok(Exchange { action: None, kept: false }),
+        Ok(Some(incoming)) => Api { http, peer, scheme }.take(incoming, io, deadline, &mut out).await,
         Err(error) => Err(error),
     };
-    let (reply, result) = match answered {
-        Ok((reply, action)) => (reply, Ok(action)),
+    let (reply, result, reusable) = match answered {
+        Ok(taken) => (taken.reply, Ok(taken.action), taken.reusable),
         Err(error @ Error::Io(_)) => return Err(error),
-        Err(error) => (refusal(&mut out, error), Err(error)),
+        Err(error) => (refusal(&mut out, error), Err(error), false),
     };
-    let response = reply.response(&mut out);
+    let kept = scheme == Scheme::Https && reusable && matches!(result, Ok(None)) && !http.yielding();
+    let mut response = reply.response(&mut out);
+    response.keep_alive = kept;
     // The request is done with: its buffer holds the response's head.
-    response::write(&mut writer, &response, buffer).await?;
-    result
+    response::write(io, &response, buffer).await?;
+    result.map(|action| Exchange { action, kept })
+}
+
+/// A reader and a writer as one stream (a plain connection's two halves).
+struct Duplex<R, W> {
+    reader: R,
+    writer: W,
+}
+
+impl<R, W> embedded_io_async::ErrorType for Duplex<R, W> {
+    type Error = ErrorKind;
+}
+
+impl<R: Read, W> Read for Duplex<R, W> {
+    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, ErrorKind> {
+        self.reader.read(buf).await.map_err(|e| embedded_io_async::Error::kind(&e))
+    }
+}
+
+impl<R, W: Write> Write for Duplex<R, W> {
+    async fn write(&mut self, buf: &[u8]) -> Result<usize, ErrorKind> {
+        self.writer.write(buf).await.map_err(|e| embedded_io_async::Error::kind(&e))
+    }
+
+    async fn flush(&mut self) -> Result<(), ErrorKind> {
+        self.writer.flush().await.map_err(|e| embedded_io_async::Error::kind(&e))
+    }
 }
 
 /// The answer to a request that broke a limit, its deadline or HTTP's grammar.

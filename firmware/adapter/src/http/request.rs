@@ -54,6 +54,9 @@ pub struct Request<'b> {
     pub origin: Option<&'b [u8]>,
     /// The request line says `HTTP/1.0` (which may leave `Host` out).
     pub http10: bool,
+    /// A `Connection` field names `close`: the client wants the connection
+    /// closed after this response.
+    pub close: bool,
     pub body: &'b [u8],
 }
 
@@ -86,10 +89,13 @@ pub struct Incoming<'b> {
 
 /// Reads a request's head from `reader` into `buffer` by `deadline`.
 ///
-/// `Ok(None)`: the client closed the connection without sending a byte.
+/// `Ok(None)`: the client closed the connection without sending a byte,
+/// or sent none by `idle` (a kept-alive connection's next request; `None`:
+/// the first request, which must come by `deadline` or is answered 408).
 pub async fn read_head<'b, R: Read>(
     reader: &mut R,
     buffer: &'b mut [u8; REQUEST_BUFFER_LEN],
+    idle: Option<Instant>,
     deadline: Instant,
 ) -> Result<Option<Incoming<'b>>, Error> {
     let mut filled = 0;
@@ -102,7 +108,14 @@ pub async fn read_head<'b, R: Read>(
         if free.is_empty() {
             return Err(Error::Limit(Limit::HeadTooLarge));
         }
-        match fill(reader, free, deadline).await? {
+        let read = match idle.filter(|_| filled == 0) {
+            Some(idle) => match fill(reader, free, idle).await {
+                Err(Error::Timeout) => return Ok(None),
+                read => read?,
+            },
+            None => fill(reader, free, deadline).await?,
+        };
+        match read {
             0 if filled == 0 => return Ok(None),
             0 => return Err(Error::BadRequest),
             n => filled += n,
@@ -114,6 +127,14 @@ pub async fn read_head<'b, R: Read>(
 }
 
 impl<'b> Incoming<'b> {
+    /// Whether no byte past this request's body was read with its head (a
+    /// client that sends its next request before this one's answer: the
+    /// connection then closes after the answer, rather than keep bytes
+    /// that are not this request's).
+    pub fn is_exact(&self) -> bool {
+        self.have as u64 <= self.content_length
+    }
+
     /// The request with its whole body: at most [`MAX_BODY_LEN`] bytes
     /// ([`Limit::BodyTooLarge`] otherwise, before a byte more is read).
     pub async fn body<R: Read>(self, reader: &mut R, deadline: Instant) -> Result<Request<'b>, Error> {
@@ -237,6 +258,7 @@ fn parse(head: &[u8]) -> Result<Head<'_>, Error> {
         content_type: None,
         origin: None,
         http10,
+        close: false,
         body: &[],
     };
     let mut content_length = None;
@@ -263,6 +285,8 @@ fn parse(head: &[u8]) -> Result<Head<'_>, Error> {
             request.content_type = Some(value);
         } else if name.eq_ignore_ascii_case(b"origin") {
             request.origin = Some(value);
+        } else if name.eq_ignore_ascii_case(b"connection") {
+            request.close |= value.split(|&b| b == b',').any(|token| token.trim_ascii().eq_ignore_ascii_case(b"close"));
         }
     }
     Ok(Head { request, content_length: content_length.unwrap_or(0) })
@@ -439,7 +463,7 @@ mod tests {
         buffer: &'b mut [u8; REQUEST_BUFFER_LEN],
         deadline: Instant,
     ) -> Result<Option<Request<'b>>, Error> {
-        match read_head(reader, buffer, deadline).await? {
+        match read_head(reader, buffer, None, deadline).await? {
             Some(incoming) => incoming.body(reader, deadline).await.map(Some),
             None => Ok(None),
         }
@@ -479,7 +503,8 @@ mod tests {
             bytes.extend(std::iter::repeat_n(0xee, extra));
             let mut client = Client { bytes: &bytes, size };
             let mut buffer = [0; REQUEST_BUFFER_LEN];
-            let mut incoming = embassy_futures::block_on(read_head(&mut client, &mut buffer, far())).unwrap().unwrap();
+            let mut incoming =
+                embassy_futures::block_on(read_head(&mut client, &mut buffer, None, far())).unwrap().unwrap();
             assert_eq!(incoming.content_length, body.len() as u64);
             let mut stream = incoming.stream(&mut client, far());
             let mut got = Vec::new();
@@ -499,7 +524,8 @@ mod tests {
         for cut in (head_len..bytes.len()).step_by(97) {
             let mut client = Client { bytes: &bytes[..cut], size: 700 };
             let mut buffer = [0; REQUEST_BUFFER_LEN];
-            let mut incoming = embassy_futures::block_on(read_head(&mut client, &mut buffer, far())).unwrap().unwrap();
+            let mut incoming =
+                embassy_futures::block_on(read_head(&mut client, &mut buffer, None, far())).unwrap().unwrap();
             let mut stream = incoming.stream(&mut client, far());
             let end = loop {
                 match embassy_futures::block_on(stream.chunk()) {

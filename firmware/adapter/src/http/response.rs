@@ -1,6 +1,7 @@
 //! Writing one response: its status line, the few header fields the API
 //! sends, and its body, all by [`WRITE_TIMEOUT`] after the first byte.
-//! Every response ends its connection (`Connection: close`).
+//! A response ends its connection (`Connection: close`) unless it is kept
+//! alive (HTTPS).
 
 use embassy_time::{Instant, with_deadline};
 use embedded_io_async::{ErrorKind, Write};
@@ -19,6 +20,7 @@ pub struct Status {
 impl Status {
     pub const OK: Self = Self::new(200, "OK");
     pub const ACCEPTED: Self = Self::new(202, "Accepted");
+    pub const PERMANENT_REDIRECT: Self = Self::new(308, "Permanent Redirect");
     pub const BAD_REQUEST: Self = Self::new(400, "Bad Request");
     pub const UNAUTHORIZED: Self = Self::new(401, "Unauthorized");
     pub const FORBIDDEN: Self = Self::new(403, "Forbidden");
@@ -38,14 +40,17 @@ impl Status {
     }
 }
 
-/// A response: its status, what its body is, and one more header field
-/// (`Allow`, `WWW-Authenticate`, `Content-Encoding`) when it needs one.
+/// A response: its status, what its body is, one more header field
+/// (`Allow`, `WWW-Authenticate`, `Content-Encoding`) when it needs one, a
+/// redirect's `Location`, and whether the connection stays open after it.
 #[derive(Clone, Copy, Debug)]
 pub struct Response<'a> {
     pub status: Status,
     pub content_type: &'static str,
     pub header: Option<(&'static str, &'static str)>,
+    pub location: Option<&'a [u8]>,
     pub body: &'a [u8],
+    pub keep_alive: bool,
 }
 
 /// The fields every response carries that a browser honours: no framing
@@ -59,8 +64,9 @@ const SECURITY_FIELDS: [(&str, &str); 4] = [
 ];
 
 /// Room for the longest head: the status line and the fields, the longest
-/// reason phrase and extra field included, and the security fields.
-pub const RESPONSE_HEAD_LEN: usize = 256 + 64 + super::page::CONTENT_SECURITY_POLICY.len();
+/// reason phrase and extra field included, the security fields, and a
+/// `Location` (`https://`, a host of at most the head's length, a port, a path).
+pub const RESPONSE_HEAD_LEN: usize = 256 + 64 + super::page::CONTENT_SECURITY_POLICY.len() + 32 + super::MAX_HEAD_LEN;
 
 /// Writes `response` to `writer`, whole by [`WRITE_TIMEOUT`] from now; its
 /// head is formatted in `head` (at least [`RESPONSE_HEAD_LEN`] bytes: the
@@ -75,7 +81,15 @@ pub async fn write<W: Write>(writer: &mut W, response: &Response<'_>, head: &mut
     out.text(response.content_type);
     out.text("\r\nContent-Length: ");
     out.number(response.body.len());
-    out.text("\r\nCache-Control: no-store\r\nConnection: close\r\n");
+    out.text("\r\nCache-Control: no-store\r\n");
+    if !response.keep_alive {
+        out.text("Connection: close\r\n");
+    }
+    if let Some(location) = response.location {
+        out.text("Location: ");
+        out.text(core::str::from_utf8(location).unwrap_or_default());
+        out.text("\r\n");
+    }
     for (name, value) in SECURITY_FIELDS.into_iter().chain(response.header) {
         out.text(name);
         out.text(": ");

@@ -11,8 +11,9 @@
 //!   HTTP/1.0 request may leave `Host` out. Otherwise 421 (another host)
 //!   or 400 (none, or not a host).
 //! - **Origin** ([`check_origin`]): when a browser says where the request
-//!   comes from, it must be the device itself: `http://` and the request's
-//!   own `Host`. Otherwise 403.
+//!   comes from, it must be the device itself: the connection's own scheme
+//!   (`http://` on port 80, `https://` on 443) and the request's own
+//!   `Host`. Otherwise 403.
 //! - **Content type** ([`has_content_type`]): every change (`PUT`, `POST`,
 //!   bodyless ones too) must say `application/json`
 //!   (`application/octet-stream` for an update file), which a page on
@@ -27,8 +28,31 @@ use crate::settings::Ipv4;
 /// Why a request is not answered: its status and the message.
 pub(super) type Refused = (Status, &'static str);
 
-/// The port HTTP means when none is written.
-const DEFAULT_PORT: &[u8] = b"80";
+/// How a request came: in plain HTTP, or in HTTPS.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Scheme {
+    Http,
+    Https,
+}
+
+impl Scheme {
+    /// An origin's start, as a browser writes it.
+    pub(super) const fn prefix(self) -> &'static [u8] {
+        match self {
+            Self::Http => b"http://",
+            Self::Https => b"https://",
+        }
+    }
+
+    /// The port the scheme means when none is written.
+    const fn default_port(self) -> &'static [u8] {
+        match self {
+            Self::Http => b"80",
+            Self::Https => b"443",
+        }
+    }
+}
 
 /// Whether the request's `Host` names this device (named `name`).
 pub(super) fn check_host(request: &Request<'_>, name: &Name) -> Result<(), Refused> {
@@ -39,7 +63,7 @@ pub(super) fn check_host(request: &Request<'_>, name: &Name) -> Result<(), Refus
             Err((Status::BAD_REQUEST, "an HTTP/1.1 request must name the device in Host"))
         };
     };
-    let Some((host, _port)) = split_port(host) else {
+    let Some((host, _port)) = split_port(host, Scheme::Http) else {
         return Err((Status::BAD_REQUEST, "Host is not a host name or address"));
     };
     if names_device(host, name) {
@@ -62,24 +86,26 @@ fn names_device(host: &[u8], name: &Name) -> bool {
     !label.is_empty() && label.eq_ignore_ascii_case(name.as_bytes())
 }
 
-/// `host[:port]` as the host and its port (`80` when none is written);
-/// `None` for anything else (IPv6 literals included: the device has none).
-fn split_port(value: &[u8]) -> Option<(&[u8], &[u8])> {
+/// `host[:port]` as the host and its port (`scheme`'s when none is
+/// written); `None` for anything else (IPv6 literals included: the device
+/// has none).
+pub(super) fn split_port(value: &[u8], scheme: Scheme) -> Option<(&[u8], &[u8])> {
     let (host, port) = match value.iter().rposition(|&b| b == b':') {
         Some(colon) => (value.get(..colon)?, value.get(colon + 1..)?),
-        None => (value, DEFAULT_PORT),
+        None => (value, scheme.default_port()),
     };
     let port_ok = (1..=5).contains(&port.len()) && port.iter().all(u8::is_ascii_digit);
     let host_ok = !host.is_empty() && host.iter().all(|&b| b.is_ascii_alphanumeric() || b == b'.' || b == b'-');
     (port_ok && host_ok).then_some((host, port))
 }
 
-/// Whether the request's `Origin`, when it has one, is the device itself.
-pub(super) fn check_origin(request: &Request<'_>) -> Result<(), Refused> {
+/// Whether the request's `Origin`, when it has one, is the device itself,
+/// reached by `scheme`.
+pub(super) fn check_origin(request: &Request<'_>, scheme: Scheme) -> Result<(), Refused> {
     const REFUSED: Refused = (Status::FORBIDDEN, "a page of another site may not use this device (Origin)");
     let Some(origin) = request.origin else { return Ok(()) };
-    let (Some(site), Some(host)) = (origin.strip_prefix(b"http://"), request.host) else { return Err(REFUSED) };
-    match (split_port(site), split_port(host)) {
+    let (Some(site), Some(host)) = (origin.strip_prefix(scheme.prefix()), request.host) else { return Err(REFUSED) };
+    match (split_port(site, scheme), split_port(host, scheme)) {
         (Some((a, a_port)), Some((b, b_port))) if a.eq_ignore_ascii_case(b) && same_port(a_port, b_port) => Ok(()),
         _ => Err(REFUSED),
     }
@@ -114,6 +140,7 @@ mod tests {
             content_type: None,
             origin: origin.map(str::as_bytes),
             http10,
+            close: false,
             body: &[],
         }
     }
@@ -149,8 +176,10 @@ mod tests {
 
     #[test]
     fn the_origin_is_the_device_itself_or_nothing() {
-        let origin = |host, origin| check_origin(&request(Some(host), Some(origin), false)).map_err(|(s, _)| s.code);
-        assert_eq!(check_origin(&request(Some("198.18.0.2"), None, false)), Ok(()), "no Origin: not a browser's page");
+        let origin = |host, origin| {
+            check_origin(&request(Some(host), Some(origin), false), Scheme::Http).map_err(|(s, _)| s.code)
+        };
+        assert_eq!(check_origin(&request(Some("198.18.0.2"), None, false), Scheme::Http), Ok(()), "no Origin");
         assert_eq!(origin("198.18.0.2", "http://198.18.0.2"), Ok(()));
         assert_eq!(origin("198.18.0.2:80", "http://198.18.0.2"), Ok(()), "the default port");
         assert_eq!(origin("127.0.0.1:8080", "http://127.0.0.1:8080"), Ok(()));
@@ -167,9 +196,26 @@ mod tests {
             assert_eq!(origin(host, other), Err(403), "{host} from {other:?}");
         }
         assert_eq!(
-            check_origin(&request(None, Some("http://198.18.0.2"), true)),
+            check_origin(&request(None, Some("http://198.18.0.2"), true), Scheme::Http),
             Err((Status::FORBIDDEN, "a page of another site may not use this device (Origin)"))
         );
+    }
+
+    #[test]
+    fn over_https_the_origin_is_the_device_in_https() {
+        let origin = |host, origin| {
+            check_origin(&request(Some(host), Some(origin), false), Scheme::Https).map_err(|(s, _)| s.code)
+        };
+        assert_eq!(origin("198.18.0.2", "https://198.18.0.2"), Ok(()));
+        assert_eq!(origin("198.18.0.2:443", "https://198.18.0.2"), Ok(()), "the default port");
+        assert_eq!(origin("press-4.local:8443", "https://press-4.local:8443"), Ok(()));
+        for (host, other) in [
+            ("198.18.0.2", "http://198.18.0.2"),
+            ("198.18.0.2:443", "https://198.18.0.2:80"),
+            ("198.18.0.2", "https://evil.example"),
+        ] {
+            assert_eq!(origin(host, other), Err(403), "{host} from {other:?}");
+        }
     }
 
     #[test]

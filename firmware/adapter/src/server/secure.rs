@@ -18,12 +18,22 @@
 //! One handshake runs at a time, at most [`HANDSHAKE_TIMEOUT`]: the arena
 //! holds one handshake's peak beside the open sessions, and a client that
 //! stalls its handshake holds no other back for longer.
+//!
+//! The arena holds [`MAX_TLS_SESSIONS`] sessions, on 802 and HTTPS
+//! together: each takes a [`Seat`] before its session is made. Modbus
+//! comes first: a client on 802 that finds no seat free says so
+//! ([`modbus_waiting`]), and the HTTPS session gives its seat up after its
+//! current response, or at once when it is idle; HTTPS never makes a
+//! Modbus client wait for more than that.
 
+use core::sync::atomic::{AtomicUsize, Ordering};
 use embassy_net::Stack;
 use embassy_net::tcp::TcpSocket;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use embassy_sync::mutex::Mutex;
-use embassy_time::{Duration, Instant, with_timeout};
+
+use embassy_sync::mutex::{Mutex, MutexGuard};
+use embassy_sync::signal::Signal;
+use embassy_time::{Duration, Instant, with_deadline, with_timeout};
 
 use super::listener::{KEEP_ALIVE, Peer, TCP_TIMEOUT, close};
 use super::{Server, Service, SlotId, Stats, serve};
@@ -31,10 +41,9 @@ use super::{Server, Service, SlotId, Stats, serve};
 /// Modbus/TCP Security's port (IANA).
 pub const SECURE_PORT: u16 = 802;
 
-/// Sessions on port 802 served at once. Each holds Mbed TLS's record
-/// buffers in the TLS arena (about 21 KiB); the board's arena is sized for
-/// these and one handshake beside them.
-pub const MAX_SECURE_CONNECTIONS: usize = 2;
+/// Sessions on port 802 served at once: as many as the TLS arena holds
+/// ([`MAX_TLS_SESSIONS`]), when no HTTPS session holds a seat.
+pub const MAX_SECURE_CONNECTIONS: usize = MAX_TLS_SESSIONS;
 
 /// Listening sockets beyond the sessions, as on 502: a new client finds one
 /// listening while another closes, and is then served or refused.
@@ -43,14 +52,6 @@ pub const SPARE_SECURE_SOCKETS: usize = 1;
 /// Sockets (and listener tasks) on port 802.
 pub const SECURE_POOL: usize = MAX_SECURE_CONNECTIONS + SPARE_SECURE_SOCKETS;
 
-/// The TLS arena a program with port 802 gives `tls::init`: the
-/// configuration's certificates and keys (4 KiB measured, 6 KiB here), one
-/// handshake at its peak (33 KiB measured with a client certificate: Mbed
-/// TLS's 16 KiB and 4 KiB record buffers and the key exchange; the tls
-/// crate's tests), and the other sessions' record buffers (21 KiB each).
-/// The NUCLEO keeps it in its 64 KiB CCM RAM.
-pub const ARENA_LEN: usize = (6 + 34 + 21 * (MAX_SECURE_CONNECTIONS - 1)) * 1024;
-
 /// The longest a handshake may take, from the connection to its end.
 pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 
@@ -58,8 +59,86 @@ pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 const SOCKET_RX_LEN: usize = 1024;
 const SOCKET_TX_LEN: usize = 1024;
 
-/// One handshake at a time.
+/// TLS sessions open at once in the program, on 802 and HTTPS together:
+/// the arena ([`crate::program::TLS_ARENA_LEN`]) holds this many.
+pub const MAX_TLS_SESSIONS: usize = 2;
+
+/// Seats taken, of [`MAX_TLS_SESSIONS`].
+static SEATS: AtomicUsize = AtomicUsize::new(0);
+/// Raised when a seat is given back.
+static FREED: Signal<CriticalSectionRawMutex, ()> = Signal::new();
+/// Modbus clients waiting for a seat, and the signal each raises.
+static MODBUS_WAITING: AtomicUsize = AtomicUsize::new(0);
+static WANTED: Signal<CriticalSectionRawMutex, ()> = Signal::new();
+
+/// How often a client waiting for a seat looks again (a given-back seat
+/// wakes one waiter; any other finds it at its next look).
+const SEAT_POLL: Duration = Duration::from_millis(100);
+
+/// Room in the arena for one TLS session, given back when dropped.
+#[derive(Debug)]
+pub struct Seat(());
+
+impl Drop for Seat {
+    fn drop(&mut self) {
+        SEATS.fetch_sub(1, Ordering::AcqRel);
+        FREED.signal(());
+    }
+}
+
+/// A seat, if one is free.
+fn try_seat() -> Option<Seat> {
+    SEATS
+        .fetch_update(Ordering::AcqRel, Ordering::Acquire, |taken| (taken < MAX_TLS_SESSIONS).then_some(taken + 1))
+        .ok()
+        .map(|_| Seat(()))
+}
+
+/// A seat for a session: at once if one is free, else once one is given
+/// back. A Modbus client (`modbus`) waiting makes the HTTPS session give
+/// its seat up ([`modbus_waiting`]); HTTPS just waits. The caller bounds the wait.
+pub async fn seat(modbus: bool) -> Seat {
+    /// Counts a Modbus client as waiting while it lives.
+    struct Waiting;
+    impl Drop for Waiting {
+        fn drop(&mut self) {
+            MODBUS_WAITING.fetch_sub(1, Ordering::AcqRel);
+        }
+    }
+    let mut waiting = None;
+    loop {
+        if let Some(seat) = try_seat() {
+            return seat;
+        }
+        if modbus && waiting.is_none() {
+            MODBUS_WAITING.fetch_add(1, Ordering::AcqRel);
+            waiting = Some(Waiting);
+            WANTED.signal(());
+        }
+        let _ = with_timeout(SEAT_POLL, FREED.wait()).await;
+    }
+}
+
+/// Whether a Modbus client waits for a seat: the HTTPS session then ends.
+pub fn modbus_waiting() -> bool {
+    MODBUS_WAITING.load(Ordering::Acquire) > 0
+}
+
+/// Returns once a Modbus client waits for a seat.
+pub async fn modbus_wants_a_seat() {
+    while !modbus_waiting() {
+        WANTED.wait().await;
+    }
+}
+
+/// One handshake at a time, on 802 and on HTTPS alike.
 static HANDSHAKE: Mutex<CriticalSectionRawMutex, ()> = Mutex::new(());
+
+/// The right to run a handshake: one at a time in the program, port 802's
+/// and HTTPS's alike, since the TLS arena holds one handshake's peak.
+pub async fn handshake_permit() -> MutexGuard<'static, CriticalSectionRawMutex, ()> {
+    HANDSHAKE.lock().await
+}
 
 /// Accepts clients on port 802 for `slot` (one of the slots past the plain
 /// listeners') and serves them with `tls`'s configuration, forever.
@@ -133,15 +212,19 @@ async fn session<S: Service>(
 ) -> Result<(), Ended> {
     let stats = server.stats();
     let started = Instant::now();
+    let Ok(_seat) = with_timeout(HANDSHAKE_TIMEOUT, seat(true)).await else {
+        Stats::count(&stats.tls_failed);
+        return Err(Ended::HandshakeTimeout);
+    };
     let mut session = tls::Session::new(tls, socket).map_err(|e| {
         Stats::count(&stats.tls_failed);
         Ended::Handshake(e)
     })?;
     let handshake = async {
-        let _permit = HANDSHAKE.lock().await;
+        let _permit = handshake_permit().await;
         session.handshake().await
     };
-    match with_timeout(HANDSHAKE_TIMEOUT, handshake).await {
+    match with_deadline(started + HANDSHAKE_TIMEOUT, handshake).await {
         Ok(Ok(())) => {}
         Ok(Err(e)) => {
             Stats::count(if e.is_certificate() { &stats.tls_refused } else { &stats.tls_failed });

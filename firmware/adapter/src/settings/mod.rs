@@ -90,8 +90,8 @@ pub struct RobotSettings {
     pub poll_ms: u16,
 }
 
-/// The `tls` group: Modbus/TCP Security, and whether plain Modbus stays
-/// open beside it (docs/tls.md).
+/// The `tls` group: Modbus/TCP Security, and whether plain Modbus and
+/// plain HTTP stay open beside TLS (docs/tls.md).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct TlsSettings {
@@ -101,6 +101,9 @@ pub struct TlsSettings {
     pub roles: Roles,
     /// Plain Modbus TCP on `modbus.port`.
     pub plain_modbus: bool,
+    /// The page and the API in plain HTTP on port 80 beside HTTPS on 443;
+    /// off: port 80 only redirects to HTTPS.
+    pub plain_http: bool,
 }
 
 /// Every setting of the device.
@@ -136,7 +139,7 @@ impl Settings {
         },
         watchdog: WatchdogSettings { timeout_ms: 0, safe_do: 0, safe_tool_do: 0, safe_ao1: 0, safe_ao2: 0 },
         robot: RobotSettings { link: None, poll_ms: 100 },
-        tls: TlsSettings { modbus: true, roles: Roles::DEFAULT, plain_modbus: true },
+        tls: TlsSettings { modbus: true, roles: Roles::DEFAULT, plain_modbus: true, plain_http: true },
     };
 
     /// The rules that tie fields together; each field's own rule was checked
@@ -152,7 +155,7 @@ impl Settings {
 
     /// The cross-field rules this whole breaks (in `const` context too, so
     /// a board's build-time settings are checked at compile time).
-    const fn broken_rules(&self) -> [Option<(Field, &'static str)>; 3] {
+    const fn broken_rules(&self) -> [Option<(Field, &'static str)>; 4] {
         let network = &self.network;
         let address = if matches!(network.mode, NetMode::Static) && network.address.is_none() {
             Some((Field::NetworkAddress, "required when the mode is static"))
@@ -170,7 +173,12 @@ impl Settings {
         } else {
             None
         };
-        [address, gateway, modbus]
+        let http = if !self.tls.plain_http && !cfg!(feature = "tls") {
+            Some((Field::TlsPlainHttp, "may be off only on a firmware with HTTPS (the tls feature)"))
+        } else {
+            None
+        };
+        [address, gateway, modbus, http]
     }
 
     /// Whether going from these settings to `new` needs a reboot: a field
@@ -606,6 +614,11 @@ fields! {
     TlsPlainModbus: tls.plain_modbus, Text, AfterReboot,
         env "TLS_PLAIN_MODBUS", flag "plain-modbus",
         rule "on or off (plain Modbus TCP on modbus.port; off only while tls.modbus is on)",
+        |text| parse::on_off(text);
+    /// The page and the API in plain HTTP on port 80.
+    TlsPlainHttp: tls.plain_http, Text, AtOnce,
+        env "TLS_PLAIN_HTTP", flag "plain-http",
+        rule "on or off (the page and the API in plain HTTP on port 80; off: port 80 only redirects to HTTPS on 443)",
         |text| parse::on_off(text);
 }
 

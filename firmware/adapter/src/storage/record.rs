@@ -27,7 +27,7 @@ use crate::settings::{Field, Settings};
 pub const VERSION: u8 = 1;
 
 /// Longest settings record, version byte included. The longest settings of
-/// today take 990 bytes (eight networks in each allow-list, four roles of
+/// today take 1008 bytes (eight networks in each allow-list, four roles of
 /// 24 characters); the rest is room for settings to come.
 pub const MAX_RECORD_LEN: usize = 1280;
 
