@@ -134,6 +134,9 @@ async function main(browser) {
   check(summary.model.includes(`firmware ${version}`), `the version is shown: ${summary.model}`);
   await shows(page, '#device', '02:4d:42:53:49:4d');
   await shows(page, '#device', '198.18.0.2/24');
+  // The page says whether its connection is encrypted.
+  summary.connection = url.startsWith('https:') ? 'HTTPS, encrypted' : 'plain HTTP: NOT ENCRYPTED';
+  await shows(page, '#device', 'Connection' + summary.connection);
   // The CPU load hal-sim's executor loop measures, once its first second has passed.
   await shows(page, '#device', /CPU load\d{1,3} %/);
   await shows(page, '#robot-state', 'STANDBY (1)');

@@ -85,7 +85,13 @@ pub fn run_within(mut command: Command, limit: Duration) -> (bool, String, Strin
 /// [`artifacts`], with the screenshots `names` of an earlier run removed
 /// (a failed run must not leave one that looks like this run's).
 pub fn fresh_artifacts(names: &[&str]) -> PathBuf {
-    let dir = artifacts();
+    fresh_artifacts_in("", names)
+}
+
+/// [`fresh_artifacts`] in the subdirectory `sub` of [`artifacts`] (made if missing).
+pub fn fresh_artifacts_in(sub: &str, names: &[&str]) -> PathBuf {
+    let dir = artifacts().join(sub);
+    std::fs::create_dir_all(&dir).expect("an artifacts directory");
     for name in names {
         let _ = std::fs::remove_file(dir.join(name));
     }

@@ -1,4 +1,4 @@
-//! What the Modbus/TCP Security tests share (hal_sim_tls, qemu_tls): the
+//! What the TLS tests share (hal_sim_tls, hal_sim_https, qemu_tls): the
 //! tls crate's test certificates, the device's certificate as a handshake
 //! shows it, and pymodbus's TLS client (tests/peers/pymodbus_tls.py), all
 //! run inside the device's namespace.
@@ -31,16 +31,15 @@ pub fn require_tools() {
     assert!(openssl.is_ok_and(|o| o.status.success()), "this test needs openssl (scripts/setup installs it)");
 }
 
-/// The device's certificate, as an operator's handshake on 802 shows it,
-/// in a file in `dir` for the clients to trust.
-pub fn device_certificate(ns: &Namespace, dir: &Path) -> PathBuf {
-    let output = ns
-        .command("openssl")
-        .args(["s_client", "-connect", &format!("{DEVICE_IP}:802"), "-showcerts"])
-        .args(["-cert", &fixture("operator.pem"), "-key", &fixture("operator.key")])
-        .stdin(Stdio::null())
-        .output()
-        .expect("openssl runs");
+/// The device's certificate, as a handshake on `port` shows it (on 802 an
+/// operator's), in a file in `dir` for the clients to trust.
+pub fn device_certificate(ns: &Namespace, dir: &Path, port: u16) -> PathBuf {
+    let mut openssl = ns.command("openssl");
+    openssl.args(["s_client", "-connect", &format!("{DEVICE_IP}:{port}"), "-showcerts"]);
+    if port == 802 {
+        openssl.args(["-cert", &fixture("operator.pem"), "-key", &fixture("operator.key")]);
+    }
+    let output = openssl.stdin(Stdio::null()).output().expect("openssl runs");
     let text = String::from_utf8_lossy(&output.stdout);
     let begin = text.find("-----BEGIN CERTIFICATE-----").unwrap_or_else(|| panic!("no certificate shown:\n{text}"));
     let end = text[begin..].find("-----END CERTIFICATE-----").expect("a whole PEM block") + begin + 25;

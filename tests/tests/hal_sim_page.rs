@@ -8,7 +8,9 @@
 //! accessibility audit (axe-core) with no serious or critical violation.
 //! It keeps screenshots in target/artifacts/ (page.png, page-error.png with
 //! a refused setting, page-narrow.png at a phone's width, and
-//! page-failure.png when a step fails) and the audit's findings (axe.json).
+//! page-failure.png when a step fails) and the audit's findings (axe.json);
+//! the run over HTTPS (chromium trusting the device's own certificate)
+//! keeps its own in target/artifacts/https/.
 //!
 //! Needs root (a namespace), node, chromium and `npm ci` in tests/browser
 //! (scripts/setup installs them); fails loudly without any of them.
@@ -17,7 +19,7 @@ use std::process::Stdio;
 use std::time::Duration;
 
 use serde_json::Value;
-use system_tests::browser::{BROWSER_TIMEOUT, browser_dir, fresh_artifacts, require_browser, run_within, summary};
+use system_tests::browser::{BROWSER_TIMEOUT, browser_dir, fresh_artifacts_in, require_browser, run_within, summary};
 use system_tests::hal_sim::{HalSim, Reply, read_frame};
 use system_tests::netns::DEVICE_IP;
 use tokio::io::AsyncWriteExt;
@@ -35,6 +37,48 @@ fn ok(reply: Reply) -> Value {
 
 #[test]
 fn the_page_shows_the_device_live_and_changes_it_through_the_api() {
+    the_page_in_chromium(Transport::Http);
+}
+
+/// The same, over HTTPS: chromium trusts the device's own certificate (in
+/// its NSS store, as a trusted peer), and the page says it is encrypted.
+#[test]
+fn the_page_works_over_https_with_the_device_certificate_trusted() {
+    the_page_in_chromium(Transport::Https);
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum Transport {
+    Http,
+    Https,
+}
+
+/// A home directory whose chromium trusts the device's certificate (NSS's
+/// store in `.pki/nssdb`, where chromium on Linux reads it), and the
+/// certificate's file (for the script's own requests, through node).
+fn trusting_home(sim: &HalSim) -> (std::path::PathBuf, std::path::PathBuf) {
+    let dir = system_tests::update::test_dir("hal-sim-page-https");
+    let cert = system_tests::tls::device_certificate(sim.ns(), &dir, 443);
+    let home = dir.join("home");
+    let nssdb = home.join(".pki/nssdb");
+    std::fs::create_dir_all(&nssdb).unwrap();
+    let db = format!("sql:{}", nssdb.display());
+    for args in [
+        vec!["-N", "-d", &db, "--empty-password"],
+        vec!["-A", "-d", &db, "-n", "device", "-t", "P,,", "-i", cert.to_str().unwrap()],
+    ] {
+        let status = std::process::Command::new("certutil").args(&args).status();
+        assert!(status.is_ok_and(|s| s.success()), "certutil {args:?} (scripts/setup installs libnss3-tools)");
+    }
+    (home, cert)
+}
+
+/// One browser at a time: two would share the machine's two cores, and the
+/// lamps' time limit.
+static ONE_BROWSER: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn the_page_in_chromium(transport: Transport) {
+    let _one = ONE_BROWSER.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
     require_browser();
     let sim = HalSim::start(&["--robot", "idle"]);
     // The telemetry the page reads.
@@ -84,11 +128,21 @@ fn the_page_shows_the_device_live_and_changes_it_through_the_api() {
     let before = ok(sim.get("/api/settings"));
     assert_eq!(sim.control_ok("get locate"), "0");
 
-    let artifacts = fresh_artifacts(&["page.png", "page-error.png", "page-narrow.png", "page-failure.png", "axe.json"]);
+    let sub = if transport == Transport::Https { "https" } else { "" };
+    let artifacts =
+        fresh_artifacts_in(sub, &["page.png", "page-error.png", "page-narrow.png", "page-failure.png", "axe.json"]);
     let mut node = sim.ns().command("node");
+    let scheme = match transport {
+        Transport::Http => "http",
+        Transport::Https => {
+            let (home, cert) = trusting_home(&sim);
+            node.env("HOME", home).env("NODE_EXTRA_CA_CERTS", cert);
+            "https"
+        }
+    };
     node.current_dir(browser_dir())
         .arg("page.js")
-        .arg(format!("http://{DEVICE_IP}/"))
+        .arg(format!("{scheme}://{DEVICE_IP}/"))
         .arg(sim.control_path())
         .arg(&artifacts)
         .arg(&version)
@@ -100,6 +154,8 @@ fn the_page_shows_the_device_live_and_changes_it_through_the_api() {
         artifacts.join("page-failure.png").display()
     );
     let summary = summary(&stdout);
+    let connection = if transport == Transport::Https { "HTTPS, encrypted" } else { "plain HTTP: NOT ENCRYPTED" };
+    assert_eq!(summary["connection"], connection, "the page says how it is reached");
 
     assert!(summary["title"].as_str().is_some_and(|t| t.contains("mbio-53494d")), "{summary}");
     assert!(summary["model"].as_str().is_some_and(|m| m.contains(&format!("firmware {version}"))), "{summary}");

@@ -20,7 +20,7 @@ fn roles_give_rights_on_802_and_other_clients_get_no_session() {
     require_tools();
     let sim = HalSim::start(&["--robot", "idle", "--client-ca", &fixture("client-ca.pem")]);
     let dir = test_dir("hal-sim-tls");
-    let server_cert = device_certificate(sim.ns(), &dir);
+    let server_cert = device_certificate(sim.ns(), &dir, 802);
 
     // An operator reads and writes, over a verified server certificate.
     let operator = pymodbus(sim.ns(), Some(("operator.pem", "operator.key")), &server_cert);
@@ -121,7 +121,7 @@ fn a_client_ca_installed_through_the_api_opens_802_after_a_restart() {
     sim.restart();
     let tls = sim.get("/api/tls").json();
     assert_eq!(tls["device"]["sha256"], fingerprint.as_str(), "the same certificate after a restart: {tls}");
-    let server_cert = device_certificate(sim.ns(), &dir);
+    let server_cert = device_certificate(sim.ns(), &dir, 802);
     let operator = pymodbus(sim.ns(), Some(("operator.pem", "operator.key")), &server_cert);
     assert_eq!(operator["write"], "ok", "{operator}");
 

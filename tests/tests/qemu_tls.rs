@@ -59,7 +59,7 @@ fn an_operator_reads_and_writes_on_802_and_a_viewer_only_reads() {
     // Second boot: 802 serves the plant's clients.
     let qemu = Qemu::tap_with_state(&state);
     qemu.wait_for_log(&format!("Modbus TCP server at {DEVICE_IP}:502"), Duration::from_secs(60));
-    let server_cert = device_certificate(qemu.ns().unwrap(), &dir);
+    let server_cert = device_certificate(qemu.ns().unwrap(), &dir, 802);
     let operator = pymodbus(qemu.ns().unwrap(), Some(("operator.pem", "operator.key")), &server_cert);
     assert_eq!(operator["read"].as_array().map(Vec::len), Some(4), "{operator}");
     assert_eq!(operator["write"], "ok", "{operator}");
