@@ -183,3 +183,97 @@ with socket.create_connection(("{DEVICE_IP}", 443), timeout=30) as raw:
     assert!(closed < 4.0, "A's idle connection was closed for B, not at its timeout: {closed} s");
     assert!(text.trim_end().ends_with(" 0"), "A got no bytes after its response: {text}");
 }
+
+/// A plant's CA and a certificate it signed for the device (P-256, naming
+/// its address), made with openssl in `dir`: (ca.pem, device.pem,
+/// device.p8 as PKCS#8, other.key as SEC1, a key of another pair).
+fn plant_certificates(dir: &Path) {
+    let ext = dir.join("ext.cnf");
+    std::fs::write(&ext, format!("subjectAltName=IP:{DEVICE_IP},DNS:mbio-53494d.local\n")).unwrap();
+    let steps: [&[&str]; 7] = [
+        &["ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", "ca.key"],
+        &["req", "-x509", "-new", "-key", "ca.key", "-subj", "/CN=Plant CA", "-days", "3650", "-out", "ca.pem"],
+        &["ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", "device.key"],
+        &["req", "-new", "-key", "device.key", "-subj", "/CN=mbio-53494d", "-out", "device.csr"],
+        &[
+            "x509",
+            "-req",
+            "-in",
+            "device.csr",
+            "-CA",
+            "ca.pem",
+            "-CAkey",
+            "ca.key",
+            "-CAcreateserial",
+            "-days",
+            "365",
+            "-extfile",
+            "ext.cnf",
+            "-out",
+            "device.pem",
+        ],
+        &["pkcs8", "-topk8", "-nocrypt", "-in", "device.key", "-out", "device.p8"],
+        &["ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", "other.key"],
+    ];
+    for args in steps {
+        let status = Command::new("openssl").args(args).current_dir(dir).stderr(Stdio::null()).status();
+        assert!(status.is_ok_and(|s| s.success()), "openssl {args:?}");
+    }
+}
+
+#[test]
+fn a_plant_installs_its_own_certificate_and_key_for_https() {
+    require_tools();
+    let dir = test_dir("hal-sim-https-installed");
+    plant_certificates(&dir);
+    let state = dir.join("state.bin");
+    let mut sim = HalSim::start_with(Some(&state), 80, &["--robot", "idle"]);
+    let password = sim.claim();
+    let read = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap();
+    let install = |certificate: &str, key: &str| {
+        let body = serde_json::json!({"certificate": certificate, "key": key}).to_string();
+        sim.put("/api/tls/certificate", &body, Some(password))
+    };
+
+    // Refused whole, each with its reason: another pair's key, no key, a
+    // key that is not PEM, no credentials.
+    let mismatched = install(&read("device.pem"), &read("other.key"));
+    assert_eq!(mismatched.status, 400, "{}", mismatched.body);
+    assert_eq!(mismatched.json()["errors"]["key"], "not the certificate's key");
+    let missing = sim.put(
+        "/api/tls/certificate",
+        &serde_json::json!({"certificate": read("device.pem")}).to_string(),
+        Some(password),
+    );
+    assert_eq!(missing.json()["errors"]["key"], "required", "{}", missing.body);
+    assert_eq!(install(&read("device.pem"), "not a key").json()["errors"]["key"], "not one PEM key");
+    let body = serde_json::json!({"certificate": read("device.pem"), "key": read("device.p8")}).to_string();
+    assert_eq!(sim.put("/api/tls/certificate", &body, None).status, 401);
+    assert_eq!(sim.get("/api/tls").json()["device"]["origin"], "self-signed", "nothing changed");
+
+    // The plant's pair, its key in PKCS#8: saved, shown without its key,
+    // and served after the restart, chaining to the plant's CA.
+    let installed = install(&read("device.pem"), &read("device.p8"));
+    assert_eq!(installed.status, 200, "{}", installed.body);
+    assert_eq!(installed.json()["device"]["origin"], "installed", "{}", installed.body);
+    assert_eq!(installed.json()["device"]["issuer"], "Plant CA", "{}", installed.body);
+    assert!(!installed.body.contains("PRIVATE"), "never a key: {}", installed.body);
+    sim.restart();
+    let plant_ca = dir.join("ca.pem");
+    let status = https(&sim, &plant_ca, "/api/status", &[]);
+    assert_eq!(status.status, 200, "the plant's CA verifies the device: {}", status.body);
+
+    // Removed: the device's own self-signed certificate again.
+    let credentials = format!("admin:{password}");
+    let removed = https(
+        &sim,
+        &plant_ca,
+        "/api/tls/certificate",
+        &["-X", "DELETE", "-u", &credentials, "-H", "Content-Type: application/json"],
+    );
+    assert_eq!(removed.status, 200, "{}", removed.body);
+    sim.restart();
+    assert_eq!(sim.get("/api/tls").json()["device"]["origin"], "self-signed");
+    let refused = curl_https(&sim, &plant_ca, &[]).arg(format!("https://{DEVICE_IP}/api/status")).output().unwrap();
+    assert_eq!(refused.status.code(), Some(60), "the plant's CA no longer verifies the device");
+}

@@ -2,7 +2,9 @@
 //! TAP inside a network namespace: a client CA installed through the API,
 //! then after a reboot pymodbus's `ModbusTlsClient` with an operator's
 //! certificate reads and writes on port 802, a viewer's write gets
-//! exception 01, and a certificate from another CA gets no session.
+//! exception 01, and a certificate from another CA gets no session; and
+//! HTTPS on 443 serves the API to curl trusting the device's certificate,
+//! two requests on one connection.
 //! Needs root, QEMU, python3 with pymodbus and openssl.
 
 use std::process::Stdio;
@@ -68,6 +70,22 @@ fn an_operator_reads_and_writes_on_802_and_a_viewer_only_reads() {
     assert_eq!(viewer["write"], serde_json::json!({"exception": 1}), "{viewer}");
     let stranger = pymodbus(qemu.ns().unwrap(), Some(("stranger.pem", "stranger.key")), &server_cert);
     assert!(!stranger["read"].is_array(), "{stranger}");
+    // HTTPS, with the same certificate: two requests, one connection.
+    let https_cert = device_certificate(qemu.ns().unwrap(), &dir, 443);
+    assert_eq!(std::fs::read(&https_cert).unwrap(), std::fs::read(&server_cert).unwrap(), "one certificate");
+    let https = format!("https://{DEVICE_IP}/api/status");
+    let cacert = https_cert.to_str().unwrap();
+    let output = qemu
+        .ns()
+        .unwrap()
+        .command("curl")
+        .args(["-sS", "-m", "20", "--cacert", cacert, "-w", "%{http_code}/%{num_connects} "])
+        .args(["-o", "/dev/null", &https, "-o", "/dev/null", &https])
+        .stdin(Stdio::null())
+        .output()
+        .expect("curl runs");
+    let codes = String::from_utf8_lossy(&output.stdout);
+    assert_eq!(codes.trim(), "200/1 200/0", "both answered over HTTPS, on one connection");
     let (_, status) = curl(&qemu, &[&url("/api/status")]);
     let status: Value = serde_json::from_str(&status).unwrap();
     assert!(status["counters"]["tls_sessions"].as_u64().unwrap() >= 3, "{status}");

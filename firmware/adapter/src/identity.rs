@@ -11,7 +11,9 @@
 //!
 //! Records (the store's keys `TLS_*`): a version byte (1; 0 marks a record
 //! removed), then for the key its 32-byte scalar, for the certificate its
-//! origin byte (0 self-signed, 1 installed) and its DER, for the CA its DER.
+//! origin byte (0 self-signed, 1 installed), for an installed one its key's
+//! scalar (one record: a certificate and its key are saved together, or
+//! not at all), and its DER; for the CA its DER.
 
 use embedded_storage_async::nor_flash::NorFlash;
 use heapless::Vec;
@@ -23,6 +25,10 @@ use crate::storage::{MAX_OTHER_RECORD_LEN, Store, StoreError, key};
 
 /// The longest certificate the device keeps (its own, or the client CA), in DER.
 pub const MAX_CERTIFICATE_LEN: usize = MAX_OTHER_RECORD_LEN - 2;
+
+/// The longest certificate a plant installs for the device, in DER: its
+/// record holds its key beside it.
+pub const MAX_INSTALLED_LEN: usize = MAX_CERTIFICATE_LEN - KEY_LEN;
 
 /// A certificate in DER, as kept.
 pub type Der = Vec<u8, MAX_CERTIFICATE_LEN>;
@@ -170,20 +176,20 @@ pub async fn load<F: NorFlash>(store: &mut Store<F>, names: &Names<'_>) -> Resul
     };
 
     let saved = match store.fetch_record(key::TLS_CERTIFICATE, &mut buf).await {
-        Ok(Some([VERSION, origin, der @ ..])) => {
-            let origin = if *origin == Origin::Installed.byte() { Origin::Installed } else { Origin::SelfSigned };
-            Der::from_slice(der).ok().map(|der| (origin, der))
-        }
+        Ok(Some([VERSION, 1, rest @ ..])) => rest
+            .split_first_chunk::<KEY_LEN>()
+            .and_then(|(scalar, der)| Der::from_slice(der).ok().map(|der| (Origin::Installed, der, Some(*scalar)))),
+        Ok(Some([VERSION, _, der @ ..])) => Der::from_slice(der).ok().map(|der| (Origin::SelfSigned, der, None)),
         _ => None,
     };
-    let (origin, certificate) = match saved {
-        Some((Origin::Installed, der)) => (Origin::Installed, der),
-        Some((Origin::SelfSigned, der)) if names_device(&der, names) => (Origin::SelfSigned, der),
+    let (key, origin, certificate) = match saved {
+        Some((Origin::Installed, der, Some(scalar))) => (scalar, Origin::Installed, der),
+        Some((Origin::SelfSigned, der, _)) if names_device(&der, names) => (key, Origin::SelfSigned, der),
         _ => {
             let der = self_signed(&key, names).map_err(Error::Tls)?;
             note(save_certificate(store, Origin::SelfSigned, &der).await, "certificate");
             info!("tls: a self-signed certificate for {}", names.name);
-            (Origin::SelfSigned, der)
+            (key, Origin::SelfSigned, der)
         }
     };
 
@@ -222,6 +228,28 @@ pub async fn save_certificate<F: NorFlash>(store: &mut Store<F>, origin: Origin,
         *version = VERSION;
         *origin_byte = origin.byte();
         rest.copy_from_slice(der);
+    }
+    store.save_record(key::TLS_CERTIFICATE, out).await
+}
+
+/// Saves a certificate a plant installed with its key's scalar, in one
+/// record; `None`: the device's own self-signed one again, made at the
+/// next start with the device's key.
+pub async fn save_installed<F: NorFlash>(
+    store: &mut Store<F>,
+    installed: Option<(&[u8; KEY_LEN], &[u8])>,
+) -> Result<(), StoreError> {
+    let Some((scalar, der)) = installed else { return store.save_record(key::TLS_CERTIFICATE, &[REMOVED]).await };
+    let mut record = [0u8; MAX_OTHER_RECORD_LEN];
+    let len = 2 + KEY_LEN + der.len();
+    let out = record.get_mut(..len).ok_or(StoreError::Record(crate::storage::RecordError::TooLong))?;
+    if let Some(([version, origin], rest)) = out.split_first_chunk_mut::<2>() {
+        *version = VERSION;
+        *origin = Origin::Installed.byte();
+        if let Some((key, cert)) = rest.split_first_chunk_mut::<KEY_LEN>() {
+            key.copy_from_slice(scalar);
+            cert.copy_from_slice(der);
+        }
     }
     store.save_record(key::TLS_CERTIFICATE, out).await
 }

@@ -352,6 +352,20 @@ impl<'a, F: NorFlash, P: Platform> Controller<'a, F, P> {
         saved.map_err(|_| Refusal::Storage)
     }
 
+    /// Saves the device's certificate a plant installed, with its key
+    /// (`None`: the self-signed one again); it applies at the next start.
+    #[cfg(feature = "tls")]
+    pub async fn save_installed(
+        &self,
+        installed: Option<(&[u8; tls::identity::KEY_LEN], &[u8])>,
+    ) -> Result<(), Refusal> {
+        let mut store = self.store.lock().await;
+        let saved = crate::identity::save_installed(&mut store, installed).await;
+        let storage = store.status();
+        self.state.lock(|state| state.borrow_mut().storage = storage);
+        saved.map_err(|_| Refusal::Storage)
+    }
+
     /// The settings store's health.
     pub fn storage(&self) -> StorageStatus {
         self.state.lock(|state| state.borrow().storage)

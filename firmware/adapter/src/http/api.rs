@@ -61,6 +61,11 @@ pub(super) enum Endpoint {
     PutClientCa,
     #[cfg(feature = "tls")]
     DeleteClientCa,
+    /// `PUT` and `DELETE /api/tls/certificate` (feature `tls`).
+    #[cfg(feature = "tls")]
+    PutCertificate,
+    #[cfg(feature = "tls")]
+    DeleteCertificate,
 }
 
 /// Why a request has no endpoint.
@@ -104,6 +109,12 @@ pub(super) fn route(method: &str, path: &str) -> Result<Endpoint, Miss> {
         ("/api/tls/client-ca", "DELETE") => ("", Some(Endpoint::DeleteClientCa)),
         #[cfg(feature = "tls")]
         ("/api/tls/client-ca", _) => ("PUT, DELETE", None),
+        #[cfg(feature = "tls")]
+        ("/api/tls/certificate", "PUT") => ("", Some(Endpoint::PutCertificate)),
+        #[cfg(feature = "tls")]
+        ("/api/tls/certificate", "DELETE") => ("", Some(Endpoint::DeleteCertificate)),
+        #[cfg(feature = "tls")]
+        ("/api/tls/certificate", _) => ("PUT, DELETE", None),
         _ => return Err(Miss::NotFound),
     };
     endpoint.ok_or(Miss::MethodNotAllowed(allowed))
@@ -357,6 +368,19 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
             Endpoint::DeleteClientCa => {
                 let _change = self.http.changes.lock().await;
                 super::tls::delete_client_ca(self.control(), out).await
+            }
+            #[cfg(feature = "tls")]
+            Endpoint::PutCertificate => {
+                let _change = self.http.changes.lock().await;
+                match super::tls::put_certificate(self.control(), request.body, out).await {
+                    Ok(reply) => reply,
+                    Err(malformed) => malformed_refusal(out, malformed),
+                }
+            }
+            #[cfg(feature = "tls")]
+            Endpoint::DeleteCertificate => {
+                let _change = self.http.changes.lock().await;
+                super::tls::delete_certificate(self.control(), out).await
             }
             // Answered above.
             Endpoint::Page | Endpoint::Status | Endpoint::Telemetry | Endpoint::GetSettings => {
