@@ -279,7 +279,7 @@ fn check_installed(
     der: &mut [u8; MAX_INSTALLED_LEN],
 ) -> Result<([u8; KEY_LEN], usize), FieldError> {
     let der = match pem_rfc7468::decode(certificate, der) {
-        Ok(("CERTIFICATE", der)) => &*der,
+        Ok(("CERTIFICATE", der)) => der,
         Ok(_) => return Err(("certificate", "a PEM CERTIFICATE is expected")),
         Err(_) => return Err(("certificate", "not one PEM certificate, or longer than this device keeps")),
     };
