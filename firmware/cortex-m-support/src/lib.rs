@@ -3,12 +3,14 @@
 //!
 //! - [`executor`]: the executor loop, which exports embassy's `__pender`
 //!   and reports each sleep (the CPU load the device shows);
-//! - [`reboot`]: the reset a board's settings service asks for.
+//! - [`reboot`]: the reset a board's settings service asks for;
+//! - [`stack`]: the stack's high-water mark.
 //!
 //! A program links this crate once; a library never depends on it.
 #![no_std]
 
 pub mod executor;
+pub mod stack;
 
 pub use executor::run;
 

@@ -64,8 +64,13 @@ const _: () = assert!(SETTINGS.modbus.port != adapter::http::HTTP_PORT, "MODBUS_
 
 static LEDS: Leds = Leds;
 
+/// The stack painted at start, for its high-water mark: more than the
+/// NUCLEO has for its stack, so the figure is the image's need.
+const STACK_PAINTED: usize = 64 * 1024;
+
 #[cortex_m_rt::entry]
 fn main() -> ! {
+    cortex_m_support::stack::paint(STACK_PAINTED);
     defmt::info!("firmware {} on mps2-an386", adapter::VERSION_TEXT);
     let ethernet = match board::init() {
         Some(Ok(ethernet)) => ethernet,
@@ -160,6 +165,7 @@ fn load_settings() -> (Store<platform::SettingsFlash>, adapter::storage::Loaded)
 /// and with `update` the confirmation and the bootloader's watchdog.
 fn spawn_board(spawner: Spawner, program: Program) -> Result<(), embassy_executor::SpawnError> {
     let _ = (spawner, program);
+    spawner.spawn(stack_task()?);
     // Without an updater the confirmation only settles the trial flag, so
     // that the watchdog is petted (a reset every 30 s would not help).
     #[cfg(feature = "update")]
@@ -176,6 +182,26 @@ fn spawn_board(spawner: Spawner, program: Program) -> Result<(), embassy_executo
         defmt::info!("HTTP API on port {}", adapter::http::HTTP_PORT);
     }
     Ok(())
+}
+
+/// Logs the stack's high-water mark each time it rises (looked at once a second).
+#[embassy_executor::task]
+async fn stack_task() -> ! {
+    let mut reported = 0;
+    loop {
+        let used = cortex_m_support::stack::used();
+        if used > reported {
+            reported = used;
+            let (main, watched) = (cortex_m_support::stack::at_paint(), cortex_m_support::stack::measured());
+            defmt::info!(
+                "stack: high-water {=usize} B (main's frame {=usize} B; {=usize} B watched)",
+                used,
+                main,
+                watched
+            );
+        }
+        embassy_time::Timer::after_secs(1).await;
+    }
 }
 
 fn fail(what: &str, error: impl defmt::Format) -> ! {

@@ -73,6 +73,8 @@ const fn robot() -> BoardRobot {
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
+    // The whole free stack painted, for its high-water mark (stack_task).
+    cortex_m_support::stack::paint(usize::MAX);
     // The executor loop measures the CPU load (cortex_m_support).
     cortex_m_support::run(
         |spawner| spawner.spawn(unwrap!(start(spawner))),
@@ -139,6 +141,7 @@ async fn start(spawner: Spawner) {
     // Every task pool is sized for exactly these spawns; a failure is a build
     // mistake, and its panic ends in the fault handler (outputs off, reset).
     unwrap!(board::spawn(spawner, board.tasks, stack, program.device, program.server));
+    spawner.spawn(unwrap!(stack_task()));
     unwrap!(program::spawn(spawner, program, runner, board.inputs, robot()));
     // Without an updater the confirmation only settles the trial flag, so
     // that the watchdog is fed (a reset every 30 s would not help).
@@ -171,4 +174,26 @@ async fn confirm_task(
     network: &'static adapter::settings::NetworkSettings,
 ) {
     update::confirm_when_serving(stack, device, network).await
+}
+
+/// Logs the stack's high-water mark each time it rises (looked at once a
+/// second): what the SRAM left after the statics must hold, with 16 KiB to
+/// spare (docs/sizes.md).
+#[embassy_executor::task]
+async fn stack_task() -> ! {
+    let mut reported = 0;
+    loop {
+        let used = cortex_m_support::stack::used();
+        if used > reported {
+            reported = used;
+            let (main, watched) = (cortex_m_support::stack::at_paint(), cortex_m_support::stack::measured());
+            defmt::info!(
+                "stack: high-water {=usize} B (main's frame {=usize} B; {=usize} B watched)",
+                used,
+                main,
+                watched
+            );
+        }
+        embassy_time::Timer::after_secs(1).await;
+    }
 }
