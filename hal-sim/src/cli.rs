@@ -359,6 +359,18 @@ mod tests {
     }
 
     #[test]
+    fn https_port() {
+        assert_eq!(run(&["--tap", "t"]).unwrap().https_port, Some(443));
+        assert_eq!(run(&["--tap", "t", "--https-port", "8443"]).unwrap().https_port, Some(8443));
+        assert_eq!(run(&["--tap", "t", "--https-port", "0"]).unwrap().https_port, None);
+        fails(&["--tap", "t", "--https-port", "802"], "may not be 802");
+        fails(&["--tap", "t", "--https-port", "80"], "`--http-port` and `--https-port` are the same port");
+        fails(&["--tap", "t", "--port", "443"], "`--https-port` and `--port` are both 443");
+        fails(&["--tap", "t", "--https-port", "-1"], "`--https-port` must be 1-65535, or 0 for none");
+        assert!(usage().contains("--https-port N"));
+    }
+
+    #[test]
     fn every_option() {
         let o = run(&[
             "--tap=sim1",

@@ -219,6 +219,29 @@ impl Response {
     }
 }
 
+/// The duplex's two halves as one stream, as a TLS session is.
+pub struct Joined(test_support::duplex::ReadHalf, test_support::duplex::WriteHalf);
+
+impl embedded_io_async::ErrorType for Joined {
+    type Error = embedded_io_async::ErrorKind;
+}
+
+impl embedded_io_async::Read for Joined {
+    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
+        self.0.read(buf).await.map_err(|e| embedded_io_async::Error::kind(&e))
+    }
+}
+
+impl embedded_io_async::Write for Joined {
+    async fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+        self.1.write(buf).await.map_err(|e| embedded_io_async::Error::kind(&e))
+    }
+
+    async fn flush(&mut self) -> Result<(), Self::Error> {
+        self.1.flush().await.map_err(|e| embedded_io_async::Error::kind(&e))
+    }
+}
+
 /// What serving one connection gave.
 pub type Served = Result<Option<Action>, Error>;
 
@@ -236,6 +259,17 @@ impl Connection {
         let (reader, writer) = end.split();
         let buffers: &'static mut Buffers = Box::leak(Box::default());
         let future = Box::pin(serve(http, peer, reader, writer, buffers));
+        Self { wire, future, result: None }
+    }
+
+    /// A connection from `peer` served as HTTPS serves one, request after
+    /// request ([`super::serve_kept`]), over the bytes alone (no TLS here).
+    pub fn open_kept(http: &'static TestHttp, peer: Option<[u8; 4]>) -> Self {
+        let (wire, end) = Wire::new();
+        let (reader, writer) = end.split();
+        let joined: &'static mut Joined = Box::leak(Box::new(Joined(reader, writer)));
+        let buffers: &'static mut Buffers = Box::leak(Box::default());
+        let future = Box::pin(super::serve_kept(http, peer, super::Scheme::Https, joined, buffers));
         Self { wire, future, result: None }
     }
 

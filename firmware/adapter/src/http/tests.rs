@@ -1155,3 +1155,83 @@ fn until_a_password_is_set_only_setting_it_is_taken_and_only_in_its_window() {
     assert_eq!(response.status, 200);
     assert_eq!(control.settings().modbus.unit_id, Some(7));
 }
+
+/// Every response in `bytes`, in order.
+#[cfg(feature = "tls")]
+fn responses(mut bytes: &[u8]) -> Vec<Response> {
+    let mut all = Vec::new();
+    while !bytes.is_empty() {
+        let head_end = bytes.windows(4).position(|w| w == b"\r\n\r\n").expect("a head") + 4;
+        let head = String::from_utf8_lossy(&bytes[..head_end]).to_ascii_lowercase();
+        let length: usize = head
+            .lines()
+            .find_map(|l| l.strip_prefix("content-length:"))
+            .and_then(|v| v.trim().parse().ok())
+            .expect("a length");
+        all.push(Response::parse(&bytes[..head_end + length]).expect("a whole response"));
+        bytes = &bytes[head_end + length..];
+    }
+    all
+}
+
+#[cfg(feature = "tls")]
+#[test]
+fn a_kept_connection_answers_request_after_request_and_closes_when_idle() {
+    let clock = Clock::take();
+    let http = api();
+    let mut connection = Connection::open_kept(http, Some(CLIENT));
+    for path in ["/api/status", "/api/settings", "/api/telemetry"] {
+        connection.wire.send(&request("GET", path, "", ""));
+        assert!(!connection.poll(), "the connection stays open after {path}");
+        let answered = responses(&connection.wire.take_replies());
+        assert_eq!(answered.len(), 1, "{path}");
+        assert_eq!(answered[0].status, 200, "{path}");
+        assert_eq!(answered[0].header("connection"), None, "kept alive: {path}");
+    }
+    // Nothing more within KEEP_ALIVE_IDLE: closed, without a 408.
+    let took = connection.run(&clock, Duration::from_millis(500), Duration::from_secs(30)).expect("it ends");
+    assert!(took >= KEEP_ALIVE_IDLE && took <= KEEP_ALIVE_IDLE + Duration::from_secs(1), "{took:?}");
+    assert_eq!(connection.result, Some(Ok(None)));
+    assert!(connection.wire.take_replies().is_empty(), "no answer to silence");
+}
+
+#[cfg(feature = "tls")]
+#[test]
+fn a_kept_connection_closes_when_asked_when_refused_and_when_a_request_comes_early() {
+    let clock = Clock::take();
+    let http = api();
+    for (what, bytes) in [
+        ("Connection: close", request("GET", "/api/status", "Connection: keep-alive, close\r\n", "")),
+        ("HTTP/1.0", format!("GET /api/status HTTP/1.0\r\nHost: {HOST}\r\n\r\n").into_bytes()),
+        ("another host", b"GET /api/status HTTP/1.1\r\nHost: evil.example\r\n\r\n".to_vec()),
+        ("pipelined", [request("GET", "/api/status", "", ""), request("GET", "/api/settings", "", "")].concat()),
+        ("a broken limit", format!("GET /{} HTTP/1.1\r\nHost: {HOST}\r\n\r\n", "a".repeat(MAX_HEAD_LEN)).into_bytes()),
+    ] {
+        let mut connection = Connection::open_kept(http, Some(CLIENT));
+        connection.wire.send(&bytes);
+        let took = connection.run(&clock, Duration::from_millis(100), Duration::from_secs(30));
+        assert!(took.is_some_and(|t| t < KEEP_ALIVE_IDLE), "{what}: closed at once, not when idle");
+        let answered = responses(&connection.wire.take_replies());
+        assert_eq!(answered.len(), 1, "{what}: one answer");
+        assert_eq!(answered[0].header("connection"), Some("close"), "{what}");
+    }
+}
+
+#[cfg(feature = "tls")]
+#[test]
+fn over_https_the_origin_is_https_and_plain_http_off_redirects_port_80() {
+    let clock = Clock::take();
+    let http = api();
+    // On the kept (HTTPS) connection, the page's origin is https://.
+    let mut connection = Connection::open_kept(http, Some(CLIENT));
+    let change = r#"{"modbus":{"unit_id":"5"}}"#;
+    connection.wire.send(&request("PUT", "/api/settings", &format!("{}Origin: http://{HOST}\r\n", owner()), change));
+    connection.wire.send(&request("PUT", "/api/settings", &format!("{}Origin: https://{HOST}\r\n", owner()), change));
+    connection.run(&clock, Duration::from_millis(100), Duration::from_secs(30));
+    let answered = responses(&connection.wire.take_replies());
+    assert_eq!(answered.iter().map(|r| r.status).collect::<Vec<_>>(), [403], "refused, then closed (pipelined)");
+    // Port 80 redirects only once HTTPS serves (here it does not: no secure port).
+    let response = put_settings(http, &clock, r#"{"tls":{"plain_http":"off"}}"#);
+    assert_eq!(response.status, 200, "{}", String::from_utf8_lossy(&response.body));
+    assert_eq!(get(http, &clock, "/api/status").status, 200, "without HTTPS serving, port 80 still serves");
+}
