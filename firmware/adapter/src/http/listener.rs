@@ -116,6 +116,13 @@ pub async fn listen_secure<F: NorFlash, P: Platform>(
             socket.abort();
             continue;
         }
+        // The client's first bytes before it waits for the session: a
+        // connection that sends nothing makes no other give its place up.
+        if with_timeout(HANDSHAKE_TIMEOUT, socket.wait_read_ready()).await.is_err() {
+            debug!("https: {}: closed, nothing sent", peer);
+            close(&mut socket).await;
+            continue;
+        }
         http.waiting.fetch_add(1, Relaxed);
         http.arrival.signal(());
         let place = with_timeout(SESSION_WAIT, async { (http.session.lock().await, seat(false).await) }).await;

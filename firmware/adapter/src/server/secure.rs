@@ -15,9 +15,11 @@
 //! - its rights are its role's, and no more than the write allow-list
 //!   gives its address; a request they do not cover gets exception 01.
 //!
-//! One handshake runs at a time, at most [`HANDSHAKE_TIMEOUT`]: the arena
-//! holds one handshake's peak beside the open sessions, and a client that
-//! stalls its handshake holds no other back for longer.
+//! One handshake runs at a time, at most [`HANDSHAKE_TIMEOUT`] from the
+//! connection: the arena holds one handshake's peak beside the open
+//! sessions, and a client that stalls its handshake holds no other back
+//! for longer. A client that connects and sends nothing takes nothing: the
+//! handshake starts at its first bytes.
 //!
 //! The arena holds [`MAX_TLS_SESSIONS`] sessions, on 802 and HTTPS
 //! together: each takes a [`Seat`] before its session is made. Modbus
@@ -212,7 +214,15 @@ async fn session<S: Service>(
 ) -> Result<(), Ended> {
     let stats = server.stats();
     let started = Instant::now();
-    let Ok(_seat) = with_timeout(HANDSHAKE_TIMEOUT, seat(true)).await else {
+    // The client's first bytes before anything is taken for it: a client
+    // that connects and sends nothing holds no seat, and no other client's
+    // handshake waits on it.
+    let deadline = started + HANDSHAKE_TIMEOUT;
+    if with_deadline(deadline, socket.wait_read_ready()).await.is_err() {
+        Stats::count(&stats.tls_failed);
+        return Err(Ended::HandshakeTimeout);
+    }
+    let Ok(_seat) = with_deadline(deadline, seat(true)).await else {
         Stats::count(&stats.tls_failed);
         return Err(Ended::HandshakeTimeout);
     };
@@ -224,7 +234,7 @@ async fn session<S: Service>(
         let _permit = handshake_permit().await;
         session.handshake().await
     };
-    match with_deadline(started + HANDSHAKE_TIMEOUT, handshake).await {
+    match with_deadline(deadline, handshake).await {
         Ok(Ok(())) => {}
         Ok(Err(e)) => {
             Stats::count(if e.is_certificate() { &stats.tls_refused } else { &stats.tls_failed });
