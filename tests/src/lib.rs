@@ -11,7 +11,9 @@ pub mod hal_sim;
 pub mod mdns;
 pub mod netns;
 pub mod qemu;
+pub mod testssl;
 pub mod tls;
+pub mod tls_abuse;
 pub mod update;
 
 use std::future::Future;

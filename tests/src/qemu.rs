@@ -435,7 +435,7 @@ impl Qemu {
                 continue;
             }
             let addr = SocketAddr::from((Ipv4Addr::LOCALHOST, port));
-            match Self::boot(Network::Slirp { port, http_port }, addr, state, images) {
+            match Self::boot(Network::Slirp { port, http_port }, addr, state, images, &[]) {
                 Ok(qemu) => return qemu,
                 // Another program took the port between our look and QEMU's bind.
                 Err(error) if error.contains("host forwarding") => last_error = error,
@@ -448,13 +448,19 @@ impl Qemu {
     /// Boots the image on the TAP of a new network namespace; the firmware is
     /// at 198.18.0.2 once its DHCP attempt has timed out.
     pub fn tap() -> Self {
-        Self::tap_on(None, None)
+        Self::tap_on(None, None, &[])
     }
 
     /// Boots the image on the TAP of a new network namespace, as
     /// [`Qemu::tap`] does, on the state file `state` (kept across boots).
     pub fn tap_with_state(state: &Path) -> Self {
-        Self::tap_on(Some(state), None)
+        Self::tap_on(Some(state), None, &[])
+    }
+
+    /// Boots the image as [`Qemu::tap_with_state`] does, with `extra`
+    /// arguments for QEMU after the image's (`-icount ...`, say).
+    pub fn tap_with_state_and_args(state: &Path, extra: &[&str]) -> Self {
+        Self::tap_on(Some(state), None, extra)
     }
 
     /// Boots `bootloader` as the kernel, as [`Qemu::slirp_booting`] does,
@@ -462,13 +468,13 @@ impl Qemu {
     /// image with `update` from the state file's ACTIVE, with no DHCP
     /// server, at 198.18.0.2 once its DHCP attempt has timed out.
     pub fn tap_booting(bootloader: &Path, image: &Path, state: &Path) -> Self {
-        Self::tap_on(Some(state), Some((bootloader, image)))
+        Self::tap_on(Some(state), Some((bootloader, image)), &[])
     }
 
-    fn tap_on(state: Option<&Path>, images: Option<(&Path, &Path)>) -> Self {
+    fn tap_on(state: Option<&Path>, images: Option<(&Path, &Path)>, extra: &[&str]) -> Self {
         let ns = Namespace::new().expect("a network namespace with a TAP");
         let ip: Ipv4Addr = DEVICE_IP.parse().expect("DEVICE_IP is an IPv4 address");
-        let mut qemu = Self::boot(Network::Tap(&ns, TAP), SocketAddr::from((ip, MODBUS_PORT)), state, images)
+        let mut qemu = Self::boot(Network::Tap(&ns, TAP), SocketAddr::from((ip, MODBUS_PORT)), state, images, extra)
             .unwrap_or_else(|error| panic!("QEMU did not start:\n{error}"));
         qemu.ns = Some(ns);
         qemu
@@ -487,8 +493,14 @@ impl Qemu {
         image: &Path,
         state: &Path,
     ) -> Self {
-        Self::boot(Network::Tap(ns, tap), SocketAddr::from((ip, MODBUS_PORT)), Some(state), Some((bootloader, image)))
-            .unwrap_or_else(|error| panic!("QEMU did not start:\n{error}"))
+        Self::boot(
+            Network::Tap(ns, tap),
+            SocketAddr::from((ip, MODBUS_PORT)),
+            Some(state),
+            Some((bootloader, image)),
+            &[],
+        )
+        .unwrap_or_else(|error| panic!("QEMU did not start:\n{error}"))
     }
 
     /// The namespace of a [`Qemu::tap`] QEMU.
@@ -497,12 +509,14 @@ impl Qemu {
     }
 
     /// Boots QEMU; `images`: the kernel and the image whose symbols decode
-    /// the log, when they differ (a bootloader), else [`image`] for both.
+    /// the log, when they differ (a bootloader), else [`image`] for both;
+    /// `extra`: more arguments for QEMU.
     fn boot(
         network: Network<'_>,
         addr: SocketAddr,
         state: Option<&Path>,
         images: Option<(&Path, &Path)>,
+        extra: &[&str],
     ) -> Result<Self, String> {
         static NEXT: AtomicU32 = AtomicU32::new(0);
         let (kernel, elf) = match images {
@@ -541,6 +555,7 @@ impl Qemu {
         command
             .args(["-k", "5", &QEMU_TIMEOUT.as_secs().to_string()])
             .args(qemu_args(&kernel, &nic, &state))
+            .args(extra)
             .arg("-monitor")
             .arg(format!("unix:{},server=on,wait=off", monitor.display()))
             .stdin(Stdio::null())

@@ -65,3 +65,43 @@ pub fn pymodbus(ns: &Namespace, client: Option<(&str, &str)>, server_cert: &Path
         panic!("pymodbus_tls.py printed no JSON ({e}):\n{stdout}\n{}", String::from_utf8_lossy(&output.stderr))
     })
 }
+
+/// A plant's CA and a certificate it signed for the device at
+/// [`DEVICE_IP`] (P-256; `mbio-53494d.local`; valid for a year; a CRL
+/// distribution point on the test network, which nothing fetches), made
+/// with openssl in `dir`: ca.pem, device.pem, device.p8 (its key, PKCS#8),
+/// other.key (another pair's key, SEC1).
+pub fn plant_certificates(dir: &Path) {
+    let ext = dir.join("ext.cnf");
+    let crl = "crlDistributionPoints=URI:http://198.18.0.1/plant.crl";
+    std::fs::write(&ext, format!("subjectAltName=IP:{DEVICE_IP},DNS:mbio-53494d.local\n{crl}\n")).unwrap();
+    let steps: [&[&str]; 7] = [
+        &["ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", "ca.key"],
+        &["req", "-x509", "-new", "-key", "ca.key", "-subj", "/CN=Plant CA", "-days", "3650", "-out", "ca.pem"],
+        &["ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", "device.key"],
+        &["req", "-new", "-key", "device.key", "-subj", "/CN=mbio-53494d", "-out", "device.csr"],
+        &[
+            "x509",
+            "-req",
+            "-in",
+            "device.csr",
+            "-CA",
+            "ca.pem",
+            "-CAkey",
+            "ca.key",
+            "-CAcreateserial",
+            "-days",
+            "365",
+            "-extfile",
+            "ext.cnf",
+            "-out",
+            "device.pem",
+        ],
+        &["pkcs8", "-topk8", "-nocrypt", "-in", "device.key", "-out", "device.p8"],
+        &["ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", "other.key"],
+    ];
+    for args in steps {
+        let status = Command::new("openssl").args(args).current_dir(dir).stderr(Stdio::null()).status();
+        assert!(status.is_ok_and(|s| s.success()), "openssl {args:?}");
+    }
+}

@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use system_tests::hal_sim::{HalSim, Reply};
 use system_tests::netns::DEVICE_IP;
-use system_tests::tls::{device_certificate, require_tools};
+use system_tests::tls::{device_certificate, plant_certificates, require_tools};
 use system_tests::update::test_dir;
 
 /// curl inside hal-sim's namespace to `https://DEVICE_IP{path}`, trusting
@@ -182,43 +182,6 @@ with socket.create_connection(("{DEVICE_IP}", 443), timeout=30) as raw:
         .unwrap_or_else(|| panic!("A's connection closed: {text}"));
     assert!(closed < 4.0, "A's idle connection was closed for B, not at its timeout: {closed} s");
     assert!(text.trim_end().ends_with(" 0"), "A got no bytes after its response: {text}");
-}
-
-/// A plant's CA and a certificate it signed for the device (P-256, naming
-/// its address), made with openssl in `dir`: (ca.pem, device.pem,
-/// device.p8 as PKCS#8, other.key as SEC1, a key of another pair).
-fn plant_certificates(dir: &Path) {
-    let ext = dir.join("ext.cnf");
-    std::fs::write(&ext, format!("subjectAltName=IP:{DEVICE_IP},DNS:mbio-53494d.local\n")).unwrap();
-    let steps: [&[&str]; 7] = [
-        &["ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", "ca.key"],
-        &["req", "-x509", "-new", "-key", "ca.key", "-subj", "/CN=Plant CA", "-days", "3650", "-out", "ca.pem"],
-        &["ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", "device.key"],
-        &["req", "-new", "-key", "device.key", "-subj", "/CN=mbio-53494d", "-out", "device.csr"],
-        &[
-            "x509",
-            "-req",
-            "-in",
-            "device.csr",
-            "-CA",
-            "ca.pem",
-            "-CAkey",
-            "ca.key",
-            "-CAcreateserial",
-            "-days",
-            "365",
-            "-extfile",
-            "ext.cnf",
-            "-out",
-            "device.pem",
-        ],
-        &["pkcs8", "-topk8", "-nocrypt", "-in", "device.key", "-out", "device.p8"],
-        &["ecparam", "-name", "prime256v1", "-genkey", "-noout", "-out", "other.key"],
-    ];
-    for args in steps {
-        let status = Command::new("openssl").args(args).current_dir(dir).stderr(Stdio::null()).status();
-        assert!(status.is_ok_and(|s| s.success()), "openssl {args:?}");
-    }
 }
 
 #[test]

@@ -118,7 +118,7 @@ pub async fn listen_secure<F: NorFlash, P: Platform>(
         }
         // The client's first bytes before it waits for the session: a
         // connection that sends nothing makes no other give its place up.
-        if with_timeout(HANDSHAKE_TIMEOUT, socket.wait_read_ready()).await.is_err() {
+        if with_timeout(HANDSHAKE_TIMEOUT, crate::server::first_bytes(&socket)).await.is_err() {
             debug!("https: {}: closed, nothing sent", peer);
             close(&mut socket).await;
             continue;

@@ -87,6 +87,17 @@ pub async fn listen<S: Service>(stack: Stack<'_>, server: &Server<'_, S>, slot: 
     }
 }
 
+/// Returns once the client has sent its first bytes, or closed its side:
+/// what a TLS listener waits for before it takes anything for the client.
+/// (embassy-net's `wait_read_ready` waits for data only: a client that
+/// closes without sending would hold the socket until the caller's limit.)
+pub(crate) async fn first_bytes(socket: &TcpSocket<'_>) {
+    const LOOK_AGAIN: Duration = Duration::from_millis(50);
+    while !socket.can_recv() && socket.may_recv() {
+        let _ = with_timeout(LOOK_AGAIN, socket.wait_read_ready()).await;
+    }
+}
+
 /// Ends a connection and frees its socket: the replies written so far and a
 /// FIN delivered (at most [`CLOSE_TIMEOUT`]), then a reset, sent at once, so
 /// that the socket listens again without waiting out TIME-WAIT.

@@ -25,7 +25,7 @@ pub use handler::{Context, Outcome, Policy};
 pub use identity::Identity;
 pub use listener::{CLOSE_TIMEOUT, SOCKET_RX_LEN, SOCKET_TX_LEN, listen};
 #[cfg(feature = "http")]
-pub(crate) use listener::{Peer, close};
+pub(crate) use listener::{Peer, close, first_bytes};
 pub use session::{Error, SESSION_BUFFER_LEN, serve};
 pub use slots::{Session, SlotId, Slots};
 

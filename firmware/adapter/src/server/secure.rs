@@ -37,7 +37,7 @@ use embassy_sync::mutex::{Mutex, MutexGuard};
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, with_deadline, with_timeout};
 
-use super::listener::{KEEP_ALIVE, Peer, TCP_TIMEOUT, close};
+use super::listener::{KEEP_ALIVE, Peer, TCP_TIMEOUT, close, first_bytes};
 use super::{Server, Service, SlotId, Stats, serve};
 
 /// Modbus/TCP Security's port (IANA).
@@ -218,7 +218,7 @@ async fn session<S: Service>(
     // that connects and sends nothing holds no seat, and no other client's
     // handshake waits on it.
     let deadline = started + HANDSHAKE_TIMEOUT;
-    if with_deadline(deadline, socket.wait_read_ready()).await.is_err() {
+    if with_deadline(deadline, first_bytes(socket)).await.is_err() {
         Stats::count(&stats.tls_failed);
         return Err(Ended::HandshakeTimeout);
     }
