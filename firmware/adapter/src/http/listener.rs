@@ -99,7 +99,7 @@ pub async fn listen_secure<F: NorFlash, P: Platform>(
 
     use embassy_time::with_timeout;
 
-    use crate::server::secure::{HANDSHAKE_TIMEOUT, handshake_permit, seat};
+    use crate::server::secure::{HANDSHAKE_TIMEOUT, seat};
 
     let mut rx = [0u8; SECURE_SOCKET_LEN];
     let mut tx = [0u8; SECURE_SOCKET_LEN];
@@ -132,27 +132,7 @@ pub async fn listen_secure<F: NorFlash, P: Platform>(
             close(&mut socket).await;
             continue;
         };
-        let served = match tls::Session::new(tls, &mut socket) {
-            Err(e) => Err(e),
-            Ok(mut session) => {
-                let handshake = async {
-                    let _permit = handshake_permit().await;
-                    session.handshake().await
-                };
-                let shaken = match with_timeout(HANDSHAKE_TIMEOUT, handshake).await {
-                    Ok(result) => result,
-                    Err(_) => Err(tls::Error::Io(embedded_io_async::ErrorKind::TimedOut)),
-                };
-                match shaken {
-                    Err(e) => Err(e),
-                    Ok(()) => {
-                        let served = serve_kept(http, peer.address, Scheme::Https, &mut session, &mut buffers).await;
-                        let _ = with_timeout(crate::server::CLOSE_TIMEOUT, session.close()).await;
-                        Ok(served)
-                    }
-                }
-            }
-        };
+        let served = serve_secure(http, tls, &mut socket, peer, &mut buffers).await;
         close(&mut socket).await;
         drop(socket);
         match served {
@@ -165,4 +145,33 @@ pub async fn listen_secure<F: NorFlash, P: Platform>(
             }
         }
     }
+}
+
+/// One HTTPS connection that has its place: the handshake (one at a time,
+/// at most `HANDSHAKE_TIMEOUT`), then its requests, then close_notify.
+/// `Err`: the handshake failed; `Ok`: what serving gave.
+#[cfg(feature = "tls")]
+async fn serve_secure<F: NorFlash, P: Platform>(
+    http: &Http<'_, F, P>,
+    tls: &tls::Server,
+    socket: &mut TcpSocket<'_>,
+    peer: Peer,
+    buffers: &mut Buffers,
+) -> Result<Result<Option<super::Action>, super::Error>, tls::Error> {
+    use embassy_time::with_timeout;
+
+    use crate::server::secure::{HANDSHAKE_TIMEOUT, handshake_permit};
+
+    let mut session = tls::Session::new(tls, socket)?;
+    let handshake = async {
+        let _permit = handshake_permit().await;
+        session.handshake().await
+    };
+    match with_timeout(HANDSHAKE_TIMEOUT, handshake).await {
+        Ok(shaken) => shaken?,
+        Err(_) => return Err(tls::Error::Io(embedded_io_async::ErrorKind::TimedOut)),
+    }
+    let served = serve_kept(http, peer.address, Scheme::Https, &mut session, buffers).await;
+    let _ = with_timeout(crate::server::CLOSE_TIMEOUT, session.close()).await;
+    Ok(served)
 }
