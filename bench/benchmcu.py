@@ -9,6 +9,7 @@ the guest reaches nothing outside). Needs no root.
 """
 
 import os
+import re
 import shutil
 import socket
 import struct
@@ -209,6 +210,36 @@ class Window:
 def window(fields):
     """The Window of a `W` line's fields (after the `W`)."""
     return Window([int(v) for v in fields])
+
+
+# --- where the instructions go ---------------------------------------------------
+
+
+def symbolize(elf, addresses):
+    """address -> [(function, file)], innermost frame first (llvm-symbolizer, inlined frames)."""
+    addresses = sorted(addresses)
+    command = ["llvm-symbolizer", f"--obj={elf}", "--functions=linkage", "--demangle", "--inlining"]
+    out = subprocess.run(command, input="".join(f"{a:#x}\n" for a in addresses), capture_output=True, text=True,
+                         check=True).stdout
+    frames = {}
+    for address, block in zip(addresses, out.split("\n\n")):
+        lines = block.strip("\n").split("\n")
+        frames[address] = [(clean_name(lines[i]), lines[i + 1]) for i in range(0, len(lines) - 1, 2)]
+    return frames
+
+
+MANGLE = [("$LT$", "<"), ("$GT$", ">"), ("$u20$", " "), ("$C$", ","), ("$RF$", "&"), ("$u7b$", "{"),
+          ("$u7d$", "}"), ("$BP$", "*"), ("$u27$", "'"), ("$u5b$", "["), ("$u5d$", "]"), ("$u3b$", ";")]
+
+
+def clean_name(name):
+    name = re.sub(r"::h[0-9a-f]{16}$", "", name)
+    if name.startswith("_$"):
+        name = name[1:]
+    for code, text in MANGLE:
+        name = name.replace(code, text)
+    return name.replace("..", "::")
+
 
 
 # --- the Modbus client -------------------------------------------------------------
