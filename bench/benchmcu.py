@@ -169,8 +169,8 @@ class Qemu:
                     m.connect(str(self.monitor))
                     m.recv(4096)
                     m.sendall(b"quit\n")
-                    # QEMU echoes the command: it has been read before the socket closes.
-                    m.recv(4096)
+                    # The socket stays open until QEMU is gone: QEMU reads the command a character at a
+                    # time, and what is left unread when the client hangs up is dropped.
                     self.process.wait(timeout=20)
             except (OSError, subprocess.TimeoutExpired):
                 self.process.terminate()
