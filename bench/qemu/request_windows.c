@@ -4,8 +4,10 @@
  * to the core going idle again, with the instruction at which the reply
  * frame was handed to the chip. Loaded by scripts/bench-mcu; it needs no
  * change to the image, so what it measures is the image that ships.
+ * Loaded by scripts/bench-tls too, for TLS handshakes, which span several
+ * windows.
  *
- *   qemu-system-arm ... -plugin request_windows.so,irq=0x458,tick=0x4e8,ctl=CTL,out=OUT
+ *   qemu-system-arm ... -plugin request_windows.so,irq=0x458,tick=0x4e8,ctl=CTL,out=OUT[,live=1]
  *
  *   irq   the address of the handler the LAN9118's interrupt runs (its
  *         vector): executing it opens a window (it also counts later entries)
@@ -14,6 +16,9 @@
  *         client before each series of requests (0: not measured); read at
  *         each window's start
  *   out   where the windows and the traces are written
+ *   live  1: also write a line when a window opens, and flush every line,
+ *         so that a client reading `out` as the guest runs knows whether
+ *         the core is busy (scripts/bench-tls waits for it to go idle)
  *
  * A window closes when the vCPU goes idle (`wfi` with nothing pending).
  * Inside it the plugin notes, in instructions from the window's start, the
@@ -30,8 +35,17 @@
  * Output, one line per window:
  *
  *   W phase instructions irqs ticks rx_frames tx_frames irq_last rx_status rx_data tx_first tx_last
+ *     outside outside_ticks
  *
- * (-1 for a mark that did not happen), and for the first TRACES request
+ * (-1 for a mark that did not happen; outside: the instructions executed
+ * between the previous window's close and this one's opening, none of them
+ * in a window: SysTick and the work of timers while no frame came, and the
+ * executor's loop after a wake-up; outside_ticks: SysTick's entries among
+ * them), with live=1 a line when a window opens
+ *
+ *   O phase
+ *
+ * and for the first TRACES request
  * windows (one frame in, one frame out) of each phase, every executed
  * address in order (hexadecimal), for where-the-instructions-go questions:
  *
@@ -117,7 +131,10 @@ struct window {
 static uint64_t irq_pc = NONE, tick_pc = NONE;
 static int ctl_fd = -1;
 static FILE *out;
+static bool live;
 static struct window w;
+/* Executed while no window was open, since the last window closed. */
+static uint64_t outside, outside_ticks;
 /* The addresses executed in the open window, in order. */
 static uint32_t *trace;
 /* Per phase: request windows traced so far. */
@@ -139,6 +156,10 @@ static void open_window(void)
     w.open = true;
     w.phase = read_phase();
     w.irq_last = w.rx_status = w.rx_data = w.tx_first = w.tx_last = NONE;
+    if (live) {
+        fprintf(out, "O %d\n", w.phase);
+        fflush(out);
+    }
 }
 
 static long long mark(uint64_t at)
@@ -164,12 +185,16 @@ static void write_trace(void)
 static void close_window(void)
 {
     w.open = false;
-    fprintf(out, "W %d %" PRIu64 " %u %u %u %u %lld %lld %lld %lld %lld\n", w.phase, w.instructions, w.irqs,
-            w.ticks, w.rx_frames, w.tx_frames, mark(w.irq_last), mark(w.rx_status), mark(w.rx_data),
-            mark(w.tx_first), mark(w.tx_last));
+    fprintf(out, "W %d %" PRIu64 " %u %u %u %u %lld %lld %lld %lld %lld %" PRIu64 " %" PRIu64 "\n", w.phase,
+            w.instructions, w.irqs, w.ticks, w.rx_frames, w.tx_frames, mark(w.irq_last), mark(w.rx_status),
+            mark(w.rx_data), mark(w.tx_first), mark(w.tx_last), outside, outside_ticks);
+    outside = outside_ticks = 0;
     if (is_request(&w) && w.instructions <= TRACE_MAX && traced[w.phase] < TRACES) {
         traced[w.phase]++;
         write_trace();
+    }
+    if (live) {
+        fflush(out);
     }
 }
 
@@ -193,6 +218,8 @@ static void on_tick(unsigned int vcpu, void *udata)
     (void)udata;
     if (w.open) {
         w.ticks++;
+    } else {
+        outside_ticks++;
     }
 }
 
@@ -200,6 +227,7 @@ static void on_insn(unsigned int vcpu, void *udata)
 {
     (void)vcpu;
     if (!w.open) {
+        outside++;
         return;
     }
     if (w.instructions < TRACE_MAX) {
@@ -305,6 +333,9 @@ __attribute__((visibility("default"))) int qemu_plugin_install(qemu_plugin_id_t 
             ok = ctl_fd >= 0;
         } else if (strncmp(arg, "out=", 4) == 0) {
             out_path = arg + 4;
+        } else if (strncmp(arg, "live=", 5) == 0) {
+            live = strcmp(arg + 5, "1") == 0;
+            ok = live || strcmp(arg + 5, "0") == 0;
         } else {
             ok = false;
         }
