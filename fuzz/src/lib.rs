@@ -21,6 +21,7 @@ pub mod input;
 pub mod mdns;
 pub mod reply;
 pub mod storage;
+pub mod tls;
 
 use core::pin::pin;
 use core::task::Poll;

@@ -42,7 +42,10 @@ unsafe extern "C" fn entropy(_: *mut c_void, output: *mut c_uchar, len: usize) -
 }
 
 /// Seeds the generator from `source`. `false` when the source failed.
-pub(crate) fn init(source: Entropy) -> bool {
+/// [`crate::init`] calls it; called again, it starts the generator anew
+/// from `source` (the fuzz target does, before every input, so that an
+/// input meets the same random numbers whatever ran before it).
+pub fn init(source: Entropy) -> bool {
     critical_section::with(|cs| {
         *ENTROPY.borrow_ref_mut(cs) = Some(source);
         let mut drbg = DRBG.borrow_ref_mut(cs);

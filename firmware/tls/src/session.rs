@@ -116,8 +116,45 @@ impl<'s, S: Read + Write> Session<'s, S> {
                 }
                 sys::MBEDTLS_ERR_SSL_WANT_WRITE => self.flush_tx().await?,
                 _ => {
-                    self.flush_tx().await?;
+                    self.flush_pending().await?;
                     return Ok(status);
+                }
+            }
+        }
+    }
+
+    /// Hands everything Mbed TLS wrote to the stream, what it still holds
+    /// included. On a record that fails its check (bad_record_mac) Mbed TLS
+    /// sends the alert and returns the error whether or not the alert went
+    /// out whole (ssl_msg.c ignores the alert's `WANT_WRITE`): when the pipe
+    /// was nearly full, the rest of the alert would stay inside it and the
+    /// peer would see a record cut short (found by the tls fuzz target).
+    async fn flush_pending(&mut self) -> Result<(), Error> {
+        loop {
+            self.flush_tx().await?;
+            let ssl = self.ssl.as_ptr();
+            // SAFETY: a set-up context; `out_left` counts the bytes Mbed
+            // TLS wrote and has not yet handed to `send`.
+            if unsafe { (*ssl).private_out_left } == 0 {
+                return Ok(());
+            }
+            // SAFETY: as in `drive`. With bytes pending, sending an alert
+            // only flushes them (`mbedtls_ssl_send_alert_message` returns
+            // `mbedtls_ssl_flush_output`'s status, the one public way to it)
+            // and writes no alert of its own.
+            let status = unsafe {
+                sys::mbedtls_ssl_set_bio(ssl, ptr::from_mut(&mut self.pipe).cast(), Some(send), Some(recv), None);
+                sys::mbedtls_ssl_send_alert_message(
+                    ssl,
+                    sys::MBEDTLS_SSL_ALERT_LEVEL_FATAL as u8,
+                    sys::MBEDTLS_SSL_ALERT_MSG_CLOSE_NOTIFY as u8,
+                )
+            };
+            match status {
+                0 | sys::MBEDTLS_ERR_SSL_WANT_WRITE => {}
+                _ => {
+                    self.flush_tx().await?;
+                    return Ok(());
                 }
             }
         }

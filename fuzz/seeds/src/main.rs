@@ -4,7 +4,7 @@
 //! the store's from records and real saves (`firmware_fuzz::storage::seeds`):
 //!
 //! ```text
-//! cargo run -p fuzz-seeds -- DIR    # writes DIR/session, DIR/handler, DIR/codec, DIR/store, DIR/record, DIR/http, DIR/mdns, DIR/reply, DIR/certificate
+//! cargo run -p fuzz-seeds -- DIR    # writes DIR/session, DIR/handler, DIR/codec, DIR/store, DIR/record, DIR/http, DIR/mdns, DIR/reply, DIR/certificate, DIR/tls
 //! ```
 //!
 //! The http target's seeds are requests to every endpoint of the API
@@ -38,9 +38,10 @@ fn main() {
         write(&dir.join("mdns"), &firmware_fuzz::mdns::seeds(), firmware_fuzz::mdns),
         write(&dir.join("reply"), &firmware_fuzz::reply::seeds(), firmware_fuzz::reply::reply),
         write(&dir.join("certificate"), &firmware_fuzz::certificate::seeds(), firmware_fuzz::certificate::certificate),
+        write(&dir.join("tls"), &firmware_fuzz::tls::seeds(), firmware_fuzz::tls::tls),
     ];
     println!(
-        "fuzz-seeds: {} session, {} handler, {} codec, {} store, {} record, {} http, {} mdns, {} reply, {} certificate seeds in {}",
+        "fuzz-seeds: {} session, {} handler, {} codec, {} store, {} record, {} http, {} mdns, {} reply, {} certificate, {} tls seeds in {}",
         written[0],
         written[1],
         written[2],
@@ -50,6 +51,7 @@ fn main() {
         written[6],
         written[7],
         written[8],
+        written[9],
         dir.display()
     );
 }
