@@ -59,11 +59,11 @@ pub const TLS_PARTIAL_WRITES: u8 = 1 << 1;
 /// secure connections: the handshake's peak then meets the arena's end.
 pub const TLS_SECOND_SESSION: u8 = 1 << 2;
 
-/// The device's TLS arena: `adapter::server::secure::ARENA_LEN` (the
+/// The device's TLS arena: `adapter::program::TLS_ARENA_LEN` (the
 /// adapter's `tls` feature, which the other targets' adapter is built
-/// without): 6 KiB for the configuration, 34 KiB for one handshake's peak,
-/// 21 KiB for the other secure session.
-pub const ARENA_LEN: usize = 61 * 1024;
+/// without): 8 KiB for the configurations, 34 KiB for one handshake's
+/// peak, 30 KiB for the other session.
+pub const ARENA_LEN: usize = 72 * 1024;
 
 /// The fixtures of the tls crate's tests: the device's certificate and key,
 /// and the CA of the clients' certificates.
@@ -139,7 +139,7 @@ thread_local! {
 fn start() -> &'static Server {
     assert!(!STARTED.swap(true, Ordering::SeqCst), "the tls target runs on one thread");
     let arena: &'static mut [u8] = Box::leak(vec![0u8; ARENA_LEN].into_boxed_slice());
-    tls::init(arena, fixed_entropy).unwrap_or_else(|e| panic!("tls::init: {e}"));
+    tls::init([arena], fixed_entropy).unwrap_or_else(|e| panic!("tls::init: {e}"));
     let credentials = Credentials { certificate: DEVICE_CERTIFICATE, key: DEVICE_KEY, client_ca: Some(CLIENT_CA) };
     let server = Server::new(&credentials).unwrap_or_else(|e| panic!("the device's configuration: {e}"));
     assert!(server.verifies_clients());

@@ -154,7 +154,7 @@ fn capture(server: &Server) -> Vec<u8> {
 #[test]
 fn a_bad_record_after_the_servers_flight_gets_a_whole_alert() {
     let arena = Box::leak(vec![0u8; ARENA_LEN].into_boxed_slice());
-    tls::init(arena, fixed_entropy).unwrap();
+    tls::init([arena], fixed_entropy).unwrap();
     let (certificate, key, ca) = (fixture("device.der"), fixture("device.key.der"), fixture("client-ca.der"));
     let server = Server::new(&Credentials { certificate: &certificate, key: &key, client_ca: Some(&ca) }).unwrap();
     let before = tls::arena::usage().used;
