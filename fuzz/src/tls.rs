@@ -84,30 +84,9 @@ const MAX_POLLS: usize = 1 << 20;
 /// limit RFC 8446 5.2 sets on expansion).
 const MAX_RECORD_LEN: usize = 4096 + 256;
 
-/// The tls target's input, split.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
-pub struct TlsInput<'a> {
-    pub flags: u8,
-    pub cuts: &'a [u8],
-    pub stream: &'a [u8],
-}
-
-impl<'a> TlsInput<'a> {
-    pub fn parse(data: &'a [u8]) -> Self {
-        let byte = |i: usize| data.get(i).copied().unwrap_or(0);
-        let rest = data.get(2..).unwrap_or(&[]);
-        let (cuts, stream) = rest.split_at(usize::from(byte(1) & 0x0f).min(rest.len()));
-        Self { flags: byte(0), cuts, stream }
-    }
-
-    pub fn to_bytes(&self) -> Vec<u8> {
-        assert!(self.cuts.len() <= MAX_CUTS);
-        let mut out = vec![self.flags, self.cuts.len() as u8];
-        out.extend_from_slice(self.cuts);
-        out.extend_from_slice(self.stream);
-        out
-    }
-}
+/// The tls target's input, split: the http target's layout (flags, the
+/// cut sizes, the client's byte stream), its flags the `TLS_*` ones.
+pub type TlsInput<'a> = crate::input::HttpInput<'a>;
 
 /// The entropy source: the same bytes on every call (SplitMix64 from a
 /// fixed seed), so the generator seeded from it draws the same numbers

@@ -70,3 +70,18 @@ pub fn used() -> usize {
 pub fn measured() -> usize {
     top().saturating_sub(BOTTOM.load(Ordering::Acquire))
 }
+
+/// Looks at the mark once a second, forever, and calls `report` with it
+/// (and [`at_paint`], and [`measured`]) each time it has risen: a board's
+/// task logs it.
+pub async fn watch(mut report: impl FnMut(usize, usize, usize)) -> ! {
+    let mut reported = 0;
+    loop {
+        let now = used();
+        if now > reported {
+            reported = now;
+            report(now, at_paint(), measured());
+        }
+        embassy_time::Timer::after_secs(1).await;
+    }
+}

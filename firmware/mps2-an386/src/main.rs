@@ -187,21 +187,10 @@ fn spawn_board(spawner: Spawner, program: Program) -> Result<(), embassy_executo
 /// Logs the stack's high-water mark each time it rises (looked at once a second).
 #[embassy_executor::task]
 async fn stack_task() -> ! {
-    let mut reported = 0;
-    loop {
-        let used = cortex_m_support::stack::used();
-        if used > reported {
-            reported = used;
-            let (main, watched) = (cortex_m_support::stack::at_paint(), cortex_m_support::stack::measured());
-            defmt::info!(
-                "stack: high-water {=usize} B (main's frame {=usize} B; {=usize} B watched)",
-                used,
-                main,
-                watched
-            );
-        }
-        embassy_time::Timer::after_secs(1).await;
-    }
+    cortex_m_support::stack::watch(|used, main, watched| {
+        defmt::info!("stack: high-water {=usize} B (main's frame {=usize} B; {=usize} B watched)", used, main, watched)
+    })
+    .await
 }
 
 fn fail(what: &str, error: impl defmt::Format) -> ! {

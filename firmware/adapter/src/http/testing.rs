@@ -220,18 +220,22 @@ impl Response {
 }
 
 /// The duplex's two halves as one stream, as a TLS session is.
+#[cfg(feature = "tls")]
 pub struct Joined(test_support::duplex::ReadHalf, test_support::duplex::WriteHalf);
 
+#[cfg(feature = "tls")]
 impl embedded_io_async::ErrorType for Joined {
     type Error = embedded_io_async::ErrorKind;
 }
 
+#[cfg(feature = "tls")]
 impl embedded_io_async::Read for Joined {
     async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
         self.0.read(buf).await.map_err(|e| embedded_io_async::Error::kind(&e))
     }
 }
 
+#[cfg(feature = "tls")]
 impl embedded_io_async::Write for Joined {
     async fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
         self.1.write(buf).await.map_err(|e| embedded_io_async::Error::kind(&e))
@@ -262,6 +266,7 @@ impl Connection {
         Self { wire, future, result: None }
     }
 
+    #[cfg(feature = "tls")]
     /// A connection from `peer` served as HTTPS serves one, request after
     /// request ([`super::serve_kept`]), over the bytes alone (no TLS here).
     pub fn open_kept(http: &'static TestHttp, peer: Option<[u8; 4]>) -> Self {

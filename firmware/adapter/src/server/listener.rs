@@ -91,6 +91,7 @@ pub async fn listen<S: Service>(stack: Stack<'_>, server: &Server<'_, S>, slot: 
 /// what a TLS listener waits for before it takes anything for the client.
 /// (embassy-net's `wait_read_ready` waits for data only: a client that
 /// closes without sending would hold the socket until the caller's limit.)
+#[cfg(feature = "tls")]
 pub(crate) async fn first_bytes(socket: &TcpSocket<'_>) {
     const LOOK_AGAIN: Duration = Duration::from_millis(50);
     while !socket.can_recv() && socket.may_recv() {

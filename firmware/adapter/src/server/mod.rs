@@ -23,9 +23,11 @@ use embassy_time::Duration;
 pub use crate::access::{Access, AllowList, Network, Rights, Roles};
 pub use handler::{Context, Outcome, Policy};
 pub use identity::Identity;
+#[cfg(all(feature = "tls", feature = "http"))]
+pub(crate) use listener::first_bytes;
 pub use listener::{CLOSE_TIMEOUT, SOCKET_RX_LEN, SOCKET_TX_LEN, listen};
 #[cfg(feature = "http")]
-pub(crate) use listener::{Peer, close, first_bytes};
+pub(crate) use listener::{Peer, close};
 pub use session::{Error, SESSION_BUFFER_LEN, serve};
 pub use slots::{Session, SlotId, Slots};
 

@@ -62,7 +62,7 @@ const SOCKET_RX_LEN: usize = 1024;
 const SOCKET_TX_LEN: usize = 1024;
 
 /// TLS sessions open at once in the program, on 802 and HTTPS together:
-/// the arena ([`crate::program::TLS_ARENA_LEN`]) holds this many.
+/// the arena (`program::TLS_ARENA_LEN`) holds this many.
 pub const MAX_TLS_SESSIONS: usize = 2;
 
 /// Seats taken, of [`MAX_TLS_SESSIONS`].
