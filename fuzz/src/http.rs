@@ -1,7 +1,10 @@
 //! The http target: arbitrary bytes as one HTTP connection to
-//! `adapter::http::serve`, over test-support's duplex, with the settings
-//! service over a real store on a rule-keeping flash (that wears out when
-//! the input says so).
+//! `adapter::http::serve` (or, with [`HTTP_KEPT`], to `serve_kept`, as
+//! HTTPS serves one: request after request), over test-support's duplex,
+//! with the settings service over a real store on a rule-keeping flash
+//! (that wears out when the input says so). The API has its TLS part (the
+//! certificate endpoints), without a TLS engine started: a certificate is
+//! read and refused by the device's own checks before the engine's.
 //!
 //! Checks, on every input:
 //! - no panic, and the connection ends within the request and response
@@ -18,7 +21,13 @@
 //!   their own endpoint, answered 200 or 202, under the same conditions;
 //! - the password changes only through its endpoint, answered 200, from
 //!   `allow_write`, typed, and with the current password once one is set
-//!   (the first one without: the device's first minutes).
+//!   (the first one without: the device's first minutes);
+//! - a TLS record (the client CA, the device's certificate) is saved only
+//!   through its endpoint, answered 200, under the same conditions;
+//! - kept connections: what the server wrote is whole responses one after
+//!   another, only the last may say `Connection: close`, and the changes
+//!   above happen only for a client who may make them (what each request
+//!   asked is not told apart there).
 
 use core::pin::pin;
 use core::task::Poll;
@@ -39,8 +48,8 @@ use test_support::duplex::poll_once;
 
 use crate::check::Pins;
 use crate::input::{
-    HTTP_KEEP_OPEN, HTTP_OUTSIDE, HTTP_PARTIAL_WRITES, HTTP_PASSWORD_SET, HTTP_SAVE_FAILS, HTTP_STALL_READS, HttpInput,
-    PASSWORD,
+    HTTP_KEEP_OPEN, HTTP_KEPT, HTTP_OUTSIDE, HTTP_PARTIAL_WRITES, HTTP_PASSWORD_SET, HTTP_SAVE_FAILS, HTTP_STALL_READS,
+    HttpInput, PASSWORD,
 };
 
 /// The client inside `allow_write`, and one outside it.
@@ -49,6 +58,9 @@ const OUTSIDE: [u8; 4] = [10, 0, 1, 2];
 
 /// The settings flash: two pages.
 const PAGE: usize = 4096;
+
+/// The settings flash's type.
+type RuleFlashOf<'a> = Wearing<'a, 4, PAGE>;
 
 /// A platform that records what it is asked.
 #[derive(Default)]
@@ -148,19 +160,33 @@ impl Response {
     }
 }
 
-/// Exactly one whole response, or a failed check.
-fn one_response(bytes: &[u8]) -> Response {
-    let end = bytes.windows(4).position(|w| w == b"\r\n\r\n").expect("a response head");
-    let head = String::from_utf8(bytes[..end].to_vec()).expect("a UTF-8 head");
-    let status = head.strip_prefix("HTTP/1.1 ").and_then(|s| s.get(..3)).and_then(|s| s.parse().ok());
-    let status = status.unwrap_or_else(|| panic!("a status line: {head:?}"));
-    let response = Response { status, head, body: bytes[end + 4..].to_vec() };
-    let length: usize = response.header("content-length").and_then(|v| v.parse().ok()).expect("a Content-Length");
-    assert_eq!(response.body.len(), length, "the body is Content-Length bytes, and nothing follows");
-    assert_eq!(response.header("connection"), Some("close"), "one request per connection");
-    if response.header("content-type") == Some("application/json") {
-        serde_json::from_slice::<serde_json::Value>(&response.body).expect("a JSON body");
+/// Whole responses one after another and nothing else, or a failed check.
+fn responses(mut bytes: &[u8]) -> Vec<Response> {
+    let mut all = Vec::new();
+    while !bytes.is_empty() {
+        let end = bytes.windows(4).position(|w| w == b"\r\n\r\n").expect("a response head");
+        let head = String::from_utf8(bytes[..end].to_vec()).expect("a UTF-8 head");
+        let status = head.strip_prefix("HTTP/1.1 ").and_then(|s| s.get(..3)).and_then(|s| s.parse().ok());
+        let status = status.unwrap_or_else(|| panic!("a status line: {head:?}"));
+        let mut response = Response { status, head, body: Vec::new() };
+        let length: usize = response.header("content-length").and_then(|v| v.parse().ok()).expect("a Content-Length");
+        let body = bytes.get(end + 4..end + 4 + length).expect("the body is Content-Length bytes");
+        response.body = body.to_vec();
+        if response.header("content-type") == Some("application/json") {
+            serde_json::from_slice::<serde_json::Value>(&response.body).expect("a JSON body");
+        }
+        bytes = &bytes[end + 4 + length..];
+        all.push(response);
     }
+    all
+}
+
+/// Exactly one whole response, as plain HTTP writes it, or a failed check.
+fn one_response(bytes: &[u8]) -> Response {
+    let mut all = responses(bytes);
+    assert_eq!(all.len(), 1, "one request per connection: one response, and nothing follows");
+    let response = all.remove(0);
+    assert_eq!(response.header("connection"), Some("close"), "one request per connection");
     response
 }
 
@@ -205,6 +231,9 @@ pub fn http(data: &[u8]) {
         wire.close();
     }
     let peer = if flag(HTTP_OUTSIDE) { OUTSIDE } else { INSIDE };
+    if flag(HTTP_KEPT) {
+        return kept(&api, &control, &wire, end, &input, peer, password);
+    }
     let (reader, writer) = end.split();
     let mut buffers = Box::new(Buffers::new());
     let result = {
@@ -259,8 +288,15 @@ pub fn http(data: &[u8]) {
     // One record for a settings change, one for a password set (the same
     // one again included), nothing else.
     let password_put = asked("PUT", "/api/password") && status == Some(200);
+    // A TLS record: only through its endpoint, answered 200 (no engine runs
+    // here, so only a removal can be: the CA's or the installed certificate's).
+    let tls_put = ["/api/tls/client-ca", "/api/tls/certificate"]
+        .iter()
+        .any(|&p| (asked("PUT", p) || asked("DELETE", p)) && status == Some(200));
+    assert!(!tls_put || may_change, "a TLS record from outside, without the password or before one is set");
     let saved = control.storage().records - saved_before;
-    assert_eq!(saved, u32::from(changed) + u32::from(password_put), "saved exactly when changed");
+    let expected = u32::from(changed) + u32::from(password_put) + u32::from(tls_put);
+    assert_eq!(saved, expected, "saved exactly when changed");
     if changed {
         assert!(asked("PUT", "/api/settings") && status == Some(200), "a change without an accepted PUT");
         assert!(may_change, "a change from outside allow_write, without the password or before one is set");
@@ -332,4 +368,72 @@ pub fn http(data: &[u8]) {
 
 fn contains(haystack: &[u8], needle: &[u8]) -> bool {
     needle.is_empty() || haystack.windows(needle.len()).any(|window| window == needle)
+}
+
+/// A connection served as HTTPS serves one (`serve_kept`), checked: whole
+/// responses, `Connection: close` on the last one only, and nothing changed
+/// for a client who may not change it.
+#[allow(clippy::too_many_arguments, reason = "the connection's parts, made by the caller")]
+fn kept(
+    api: &Http<'_, RuleFlashOf<'_>, FuzzPlatform>,
+    control: &Controller<'_, RuleFlashOf<'_>, FuzzPlatform>,
+    wire: &test_support::duplex::Wire,
+    mut end: test_support::duplex::ServerEnd,
+    input: &HttpInput<'_>,
+    peer: [u8; 4],
+    password: Option<&str>,
+) {
+    let settings = control.settings();
+    let saved_before = control.storage().records;
+    let mut buffers = Box::new(Buffers::new());
+    let result = {
+        let mut serving = pin!(http::serve_kept(api, Some(peer), http::Scheme::Https, &mut end, &mut buffers));
+        // Each request may take its whole bound, and the stream holds
+        // fewer requests than bytes.
+        let bound = BOUND * (input.stream.len() as u32 + 1);
+        let step = Duration::from_millis(100);
+        let mut waited = Duration::from_ticks(0);
+        loop {
+            let stalls = wire.stalls();
+            match poll_once(serving.as_mut()) {
+                Poll::Ready(result) => break result,
+                Poll::Pending if wire.stalls() > stalls => {}
+                Poll::Pending => {
+                    assert!(waited < bound, "the connection ends");
+                    MockDriver::get().advance(step);
+                    waited += step;
+                }
+            }
+        }
+    };
+    let all = responses(&wire.take_replies());
+    if let Some((_, before_last)) = all.split_last() {
+        for response in before_last {
+            assert_eq!(response.header("connection"), None, "only the last response ends the connection");
+        }
+    }
+    let without_nul: Vec<u8> = input.stream.iter().copied().filter(|&b| b != 0).collect();
+    let lower = input.stream.to_ascii_lowercase();
+    let typed = contains(&lower, b"application/json") || contains(&lower, b"application/octet-stream");
+    let credentialed = contains(&without_nul, credentials().as_bytes());
+    let outside = peer == OUTSIDE;
+    let may_set_password = !outside && typed && (password.is_none() || credentialed);
+    // A connection that set the first password may go on with it (any, not
+    // only [`PASSWORD`]): then only the address and the type bound it.
+    let first_set = password.is_none() && control.password_set();
+    let may_change = !outside && typed && (credentialed && password.is_some() || first_set);
+    let password_changed = control.password_set() != password.is_some()
+        || password.is_some_and(|password| !block_on(control.verify_password(password.as_bytes())));
+    if password_changed {
+        assert!(may_set_password, "the password changed from outside or without the current one");
+    }
+    let saved = control.storage().records - saved_before;
+    if control.settings() != settings || saved > u32::from(password_changed) {
+        assert!(may_change, "a change from outside allow_write, without the password or before one is set");
+    }
+    let platform = control.platform();
+    if platform.located.get() || !platform.firmware.borrow().is_empty() || matches!(result, Ok(Some(_))) {
+        assert!(may_change, "an action from outside allow_write or without the password");
+    }
+    assert_eq!(platform.reboots.get(), 0, "a reboot is the caller's, after the connection closed");
 }

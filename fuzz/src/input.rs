@@ -115,6 +115,9 @@ pub const HTTP_SAVE_FAILS: u8 = 1 << 4;
 /// Bit 5: the client keeps its side open after its bytes (the request
 /// deadline ends a request left incomplete).
 pub const HTTP_KEEP_OPEN: u8 = 1 << 5;
+/// Bit 6: the connection is served as HTTPS serves one (`serve_kept`):
+/// request after request, the stream holding any number of them.
+pub const HTTP_KEPT: u8 = 1 << 6;
 
 /// The admin password when [`HTTP_PASSWORD_SET`].
 pub const PASSWORD: &str = "s3cret-pass";

@@ -48,7 +48,6 @@ use test_support::duplex::{Wire, poll_once};
 use tls::{Credentials, Server, Session};
 
 use crate::connection;
-use crate::input::MAX_CUTS;
 
 /// Flags bit 0: every read is `Pending` once before it returns data.
 pub const TLS_STALL_READS: u8 = 1 << 0;

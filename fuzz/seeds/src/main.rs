@@ -16,7 +16,7 @@
 use std::path::{Path, PathBuf};
 
 use firmware_fuzz::input::{
-    HTTP_KEEP_OPEN, HTTP_OUTSIDE, HTTP_PARTIAL_WRITES, HTTP_PASSWORD_SET, HTTP_SAVE_FAILS, HTTP_STALL_READS,
+    HTTP_KEEP_OPEN, HTTP_KEPT, HTTP_OUTSIDE, HTTP_PARTIAL_WRITES, HTTP_PASSWORD_SET, HTTP_SAVE_FAILS, HTTP_STALL_READS,
     PARTIAL_WRITES, READ_ONLY, STALL_READS, STRICT, UNIT_FILTER,
 };
 use firmware_fuzz::{HandlerInput, HttpInput, SessionInput};
@@ -237,5 +237,32 @@ fn http_seeds() -> Vec<Vec<u8>> {
     // Right credentials but for a NUL byte inside them: refused.
     let nul = "Authorization: Basic YWRtaW46czNjcmV0LX\0Bhc3M=\r\n";
     seeds.push(seed(HTTP_PASSWORD_SET, &[], &http_request("POST", "/api/reboot", nul, "")));
+    // The TLS endpoints: a CA and a device certificate with a key, each PEM
+    // (refused by the device's checks: the text is not a certificate), and
+    // the removals.
+    let pem = "-----BEGIN CERTIFICATE-----\\nMIIBkTCB+wIJAL0=\\n-----END CERTIFICATE-----\\n";
+    let key =
+        "-----BEGIN PRIVATE KEY-----\\nMIGHAgEAMBMGByqGSM49AgEGCCqGSM49AwEHBG0wawIBAQQg\\n-----END PRIVATE KEY-----\\n";
+    for request in [
+        http_request("PUT", "/api/tls/client-ca", auth, &format!(r#"{{"certificate": "{pem}"}}"#)),
+        http_request("PUT", "/api/tls/certificate", auth, &format!(r#"{{"certificate": "{pem}", "key": "{key}"}}"#)),
+        http_request("DELETE", "/api/tls/certificate", auth, ""),
+        http_request("GET", "/api/tls", "", ""),
+    ] {
+        seeds.push(seed(HTTP_PASSWORD_SET, &[], &request));
+    }
+    // Kept connections (HTTPS's): requests one after another, a pipelined
+    // pair, a change among reads, one left half sent.
+    let kept = [
+        [requests[0].clone(), requests[1].clone(), requests[0].clone()].concat(),
+        [requests[0].clone(), requests[3].clone(), b"GET /api/status HTTP/1.1\r\nConnection: close\r\n\r\n".to_vec()]
+            .concat(),
+        [requests[9].clone(), requests[3].clone()].concat(),
+        [requests[1].clone(), requests[2][..20].to_vec()].concat(),
+    ];
+    for stream in &kept {
+        seeds.push(seed(HTTP_KEPT | HTTP_PASSWORD_SET, &[], stream));
+        seeds.push(seed(HTTP_KEPT | HTTP_STALL_READS | HTTP_PARTIAL_WRITES, &[3, 0, 50], stream));
+    }
     seeds
 }

@@ -219,33 +219,6 @@ impl Response {
     }
 }
 
-/// The duplex's two halves as one stream, as a TLS session is.
-#[cfg(feature = "tls")]
-pub struct Joined(test_support::duplex::ReadHalf, test_support::duplex::WriteHalf);
-
-#[cfg(feature = "tls")]
-impl embedded_io_async::ErrorType for Joined {
-    type Error = embedded_io_async::ErrorKind;
-}
-
-#[cfg(feature = "tls")]
-impl embedded_io_async::Read for Joined {
-    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
-        self.0.read(buf).await.map_err(|e| embedded_io_async::Error::kind(&e))
-    }
-}
-
-#[cfg(feature = "tls")]
-impl embedded_io_async::Write for Joined {
-    async fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
-        self.1.write(buf).await.map_err(|e| embedded_io_async::Error::kind(&e))
-    }
-
-    async fn flush(&mut self) -> Result<(), Self::Error> {
-        self.1.flush().await.map_err(|e| embedded_io_async::Error::kind(&e))
-    }
-}
-
 /// What serving one connection gave.
 pub type Served = Result<Option<Action>, Error>;
 
@@ -271,10 +244,9 @@ impl Connection {
     /// request ([`super::serve_kept`]), over the bytes alone (no TLS here).
     pub fn open_kept(http: &'static TestHttp, peer: Option<[u8; 4]>) -> Self {
         let (wire, end) = Wire::new();
-        let (reader, writer) = end.split();
-        let joined: &'static mut Joined = Box::leak(Box::new(Joined(reader, writer)));
+        let end: &'static mut test_support::duplex::ServerEnd = Box::leak(Box::new(end));
         let buffers: &'static mut Buffers = Box::leak(Box::default());
-        let future = Box::pin(super::serve_kept(http, peer, super::Scheme::Https, joined, buffers));
+        let future = Box::pin(super::serve_kept(http, peer, super::Scheme::Https, end, buffers));
         Self { wire, future, result: None }
     }
 
