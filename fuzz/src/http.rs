@@ -236,24 +236,8 @@ pub fn http(data: &[u8]) {
     }
     let (reader, writer) = end.split();
     let mut buffers = Box::new(Buffers::new());
-    let result = {
-        let mut serving = pin!(http::serve(&api, Some(peer), reader, writer, &mut buffers));
-        let step = Duration::from_millis(100);
-        let mut waited = Duration::from_ticks(0);
-        loop {
-            let stalls = wire.stalls();
-            match poll_once(serving.as_mut()) {
-                Poll::Ready(result) => break result,
-                // A stalled read or write: poll again, as an executor would.
-                Poll::Pending if wire.stalls() > stalls => {}
-                Poll::Pending => {
-                    assert!(waited < BOUND, "the connection ends within {} s", BOUND.as_secs());
-                    MockDriver::get().advance(step);
-                    waited += step;
-                }
-            }
-        }
-    };
+    let serving = pin!(http::serve(&api, Some(peer), reader, writer, &mut buffers));
+    let result = run_to_end(serving, &wire, BOUND);
 
     let written = wire.take_replies();
     let response = (!written.is_empty()).then(|| one_response(&written));
@@ -366,6 +350,31 @@ pub fn http(data: &[u8]) {
     }
 }
 
+/// Polls `serving` to its end as an executor would, moving the mock clock
+/// on by 100 ms whenever it waits with nothing stalled; fails if that
+/// takes longer than `bound`.
+fn run_to_end<F: Future>(
+    mut serving: core::pin::Pin<&mut F>,
+    wire: &test_support::duplex::Wire,
+    bound: Duration,
+) -> F::Output {
+    let step = Duration::from_millis(100);
+    let mut waited = Duration::from_ticks(0);
+    loop {
+        let stalls = wire.stalls();
+        match poll_once(serving.as_mut()) {
+            Poll::Ready(result) => return result,
+            // A stalled read or write: poll again, as an executor would.
+            Poll::Pending if wire.stalls() > stalls => {}
+            Poll::Pending => {
+                assert!(waited < bound, "the connection ends within {} s", bound.as_secs());
+                MockDriver::get().advance(step);
+                waited += step;
+            }
+        }
+    }
+}
+
 fn contains(haystack: &[u8], needle: &[u8]) -> bool {
     needle.is_empty() || haystack.windows(needle.len()).any(|window| window == needle)
 }
@@ -386,26 +395,11 @@ fn kept(
     let settings = control.settings();
     let saved_before = control.storage().records;
     let mut buffers = Box::new(Buffers::new());
-    let result = {
-        let mut serving = pin!(http::serve_kept(api, Some(peer), http::Scheme::Https, &mut end, &mut buffers));
-        // Each request may take its whole bound, and the stream holds
-        // fewer requests than bytes.
-        let bound = BOUND * (input.stream.len() as u32 + 1);
-        let step = Duration::from_millis(100);
-        let mut waited = Duration::from_ticks(0);
-        loop {
-            let stalls = wire.stalls();
-            match poll_once(serving.as_mut()) {
-                Poll::Ready(result) => break result,
-                Poll::Pending if wire.stalls() > stalls => {}
-                Poll::Pending => {
-                    assert!(waited < bound, "the connection ends");
-                    MockDriver::get().advance(step);
-                    waited += step;
-                }
-            }
-        }
-    };
+    // Each request may take its whole bound, and the stream holds fewer
+    // requests than bytes.
+    let bound = BOUND * (input.stream.len() as u32 + 1);
+    let serving = pin!(http::serve_kept(api, Some(peer), http::Scheme::Https, &mut end, &mut buffers));
+    let result = run_to_end(serving, wire, bound);
     let all = responses(&wire.take_replies());
     if let Some((_, before_last)) = all.split_last() {
         for response in before_last {

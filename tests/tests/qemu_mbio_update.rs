@@ -54,6 +54,13 @@ fn boot(
     qemu
 }
 
+/// Waits (at most 20 s) until `ip:port` takes a TCP connection from `ns`.
+fn wait_reachable(ns: &Namespace, ip: &str, port: u16) {
+    let probe = format!("until (exec 3<>/dev/tcp/{ip}/{port}) 2>/dev/null; do sleep 0.5; done");
+    let status = ns.command("timeout").args(["20", "bash", "-c", &probe]).status().expect("bash runs");
+    assert!(status.success(), "{ip}:{port} did not take a connection within 20 s");
+}
+
 #[test]
 fn a_rollout_stops_at_a_forged_file_and_updates_both_with_the_signed_one() {
     let (bootloader, image) = qemu::update_images();
@@ -97,6 +104,10 @@ fn a_rollout_stops_at_a_forged_file_and_updates_both_with_the_signed_one() {
     ns.ip(&["neigh", "flush", "to", DEVICE_IP]).unwrap();
     let first_state = installed_state(&dir, &image);
     let first_qemu = boot(&ns, &taps[0], first, &bootloader, &image, &first_state);
+    // The host learns the new board's MAC before mbio asks it (its ARP
+    // gives up after 3 s: on a loaded machine QEMU's first answers can be
+    // later, and mbio would report the device unreachable).
+    wait_reachable(&ns, DEVICE_IP, 80);
     assert_exit(&mbio(&["password", DEVICE_IP]), 0);
     assert_exit(&mbio(&["set", DEVICE_IP, "device.name=qemu-a"]), 0);
     let targets = [DEVICE_IP.to_owned(), SECOND_IP.to_string()];
