@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use system_tests::hal_sim::{HalSim, Reply};
 use system_tests::netns::DEVICE_IP;
-use system_tests::tls::{device_certificate, plant_certificates, require_tools};
+use system_tests::tls::{device_certificate, fixture, plant_certificates, pymodbus, require_tools};
 use system_tests::update::test_dir;
 
 /// curl inside hal-sim's namespace to `https://DEVICE_IP{path}`, trusting
@@ -133,8 +133,25 @@ fn a_client_waiting_for_the_session_takes_it_from_an_idle_connection() {
     let dir = test_dir("hal-sim-https-wait");
     let cert = device_certificate(sim.ns(), &dir, 443);
 
-    // A keeps its connection after one request, as a browser does, and
-    // reports when the device closes it.
+    // A keeps its connection after one request, as a browser does.
+    let holder = hold_https(&sim, &cert);
+    std::thread::sleep(Duration::from_millis(1500));
+
+    // B asks while A idles: it is served well before A's idle timeout (5 s).
+    let asked = Instant::now();
+    let b = https(&sim, &cert, "/api/status", &[]);
+    let waited = asked.elapsed();
+    assert_eq!(b.status, 200, "{}", b.body);
+    assert!(waited < Duration::from_secs(2), "B waited {waited:?}: A did not yield");
+
+    let closed = closed_after(holder);
+    assert!(closed < 4.0, "A's idle connection was closed for B, not at its timeout: {closed} s");
+}
+
+/// An HTTPS client that sends one request, reads its response, and keeps
+/// the connection idle until the device closes it (it prints how long that
+/// took: [`closed_after`]).
+fn hold_https(sim: &HalSim, cert: &Path) -> std::process::Child {
     let script = format!(
         r#"
 import socket, ssl, sys, time
@@ -162,26 +179,63 @@ with socket.create_connection(("{DEVICE_IP}", 443), timeout=30) as raw:
         cert = cert.display()
     );
     let mut holder = sim.ns().command("python3");
-    let holder = holder.args(["-c", &script]).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
-    std::thread::sleep(Duration::from_millis(1500));
+    holder.args(["-c", &script]).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap()
+}
 
-    // B asks while A idles: it is served well before A's idle timeout (5 s).
-    let asked = Instant::now();
-    let b = https(&sim, &cert, "/api/status", &[]);
-    let waited = asked.elapsed();
-    assert_eq!(b.status, 200, "{}", b.body);
-    assert!(waited < Duration::from_secs(2), "B waited {waited:?}: A did not yield");
-
+/// How long after its first response [`hold_https`]'s connection was
+/// closed by the device, in seconds, once it got no byte more.
+fn closed_after(holder: std::process::Child) -> f64 {
     let output = holder.wait_with_output().unwrap();
     let text = String::from_utf8_lossy(&output.stdout);
     assert!(text.contains("first HTTP/1.1 200 OK"), "{text}\n{}", String::from_utf8_lossy(&output.stderr));
-    let closed: f64 = text
-        .lines()
+    assert!(text.trim_end().ends_with(" 0"), "no bytes after its response: {text}");
+    text.lines()
         .find_map(|line| line.strip_prefix("closed_after_s "))
         .and_then(|rest| rest.split(' ').next()?.parse().ok())
-        .unwrap_or_else(|| panic!("A's connection closed: {text}"));
-    assert!(closed < 4.0, "A's idle connection was closed for B, not at its timeout: {closed} s");
-    assert!(text.trim_end().ends_with(" 0"), "A got no bytes after its response: {text}");
+        .unwrap_or_else(|| panic!("the held connection closed: {text}"))
+}
+
+/// Modbus first: with one session on 802 and HTTPS holding the arena's
+/// other seat, a second Modbus/TCP Security client gets a session, and the
+/// HTTPS connection is closed for it.
+#[test]
+fn a_modbus_security_client_takes_the_seat_https_holds() {
+    require_tools();
+    let sim = HalSim::start(&["--robot", "idle", "--client-ca", &fixture("client-ca.pem")]);
+    let dir = test_dir("hal-sim-https-seat");
+    let modbus_cert = device_certificate(sim.ns(), &dir, 802);
+    let cert = device_certificate(sim.ns(), &dir, 443);
+    let sessions = || sim.get("/api/status").json()["counters"]["tls_sessions"].as_u64().unwrap_or(0);
+    let before = sessions();
+
+    // Seat one: an operator's session on 802, held open.
+    let mut first = sim
+        .ns()
+        .command("openssl")
+        .args(["s_client", "-quiet", "-connect", &format!("{DEVICE_IP}:802")])
+        .args(["-cert", &fixture("operator.pem"), "-key", &fixture("operator.key")])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while sessions() == before {
+        assert!(Instant::now() < deadline, "the first 802 session opens");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    // Seat two: an HTTPS connection kept idle.
+    let holder = hold_https(&sim, &cert);
+    std::thread::sleep(Duration::from_millis(1500));
+
+    // A second operator on 802: served, the HTTPS connection closed for it.
+    let second = pymodbus(sim.ns(), Some(("operator.pem", "operator.key")), &modbus_cert);
+    assert_eq!(second["read"].as_array().map(Vec::len), Some(4), "{second}");
+    assert_eq!(second["write"], "ok", "{second}");
+    let closed = closed_after(holder);
+    assert!(closed < 4.0, "the HTTPS connection gave its seat up, not at its idle timeout: {closed} s");
+    let _ = first.kill();
+    let _ = first.wait();
 }
 
 #[test]

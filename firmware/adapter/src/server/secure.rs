@@ -98,7 +98,8 @@ fn try_seat() -> Option<Seat> {
 
 /// A seat for a session: at once if one is free, else once one is given
 /// back. A Modbus client (`modbus`) waiting makes the HTTPS session give
-/// its seat up ([`modbus_waiting`]); HTTPS just waits. The caller bounds the wait.
+/// its seat up ([`modbus_waiting`]); HTTPS just waits, and takes no seat
+/// while a Modbus client waits for one. The caller bounds the wait.
 pub async fn seat(modbus: bool) -> Seat {
     /// Counts a Modbus client as waiting while it lives.
     struct Waiting;
@@ -109,7 +110,7 @@ pub async fn seat(modbus: bool) -> Seat {
     }
     let mut waiting = None;
     loop {
-        if let Some(seat) = try_seat() {
+        if let Some(seat) = (modbus || !modbus_waiting()).then(try_seat).flatten() {
             return seat;
         }
         if modbus && waiting.is_none() {
