@@ -153,7 +153,7 @@ impl Reply {
 }
 
 /// `{"errors": {key: message}}` with one request-level key.
-fn refusal(out: &mut Out<'_>, status: Status, key: &str, message: &str) -> Reply {
+pub(super) fn refusal(out: &mut Out<'_>, status: Status, key: &str, message: &str) -> Reply {
     out.clear();
     out.text("{\"errors\":{");
     out.string(key);
@@ -199,9 +199,11 @@ impl<'b, F: NorFlash, P: Platform> Api<'_, 'b, F, P> {
         // Before anything else: the request names this device, and does
         // not come from a page of another site.
         let name = crate::net::DeviceName::device_name(self.control());
-        let checked = site::check_host(&incoming.request, &name).and_then(|()| match self.http.redirect_port() {
-            Some(port) if self.scheme == Scheme::Http => Err(redirect(&incoming.request, port, out)),
-            _ => site::check_origin(&incoming.request, self.scheme),
+        // Only plain HTTP may redirect: HTTPS never reads the setting.
+        let redirect_to = if self.scheme == Scheme::Http { self.http.redirect_port() } else { None };
+        let checked = site::check_host(&incoming.request, &name).and_then(|()| match redirect_to {
+            Some(port) => Err(redirect(&incoming.request, port, out)),
+            None => site::check_origin(&incoming.request, self.scheme),
         });
         if let Err((status, message)) = checked {
             let reply = if status == Status::PERMANENT_REDIRECT {

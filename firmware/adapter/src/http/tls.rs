@@ -197,14 +197,7 @@ pub(super) async fn put_certificate<F: NorFlash, P: Platform>(
     let mut der = [0u8; MAX_INSTALLED_LEN];
     let (scalar, len) = match read_installed(body, &mut der)? {
         Ok(checked) => checked,
-        Err((field, reason)) => {
-            out.text("{\"errors\":{");
-            out.string(field);
-            out.text(":");
-            out.string(reason);
-            out.text("}}");
-            return Ok(Reply::new(Status::BAD_REQUEST));
-        }
+        Err((field, reason)) => return Ok(super::api::refusal(out, Status::BAD_REQUEST, field, reason)),
     };
     if control.save_installed(Some((&scalar, der.get(..len).unwrap_or_default()))).await.is_err() {
         out.text("{\"errors\":{\"request\":\"the certificate was not saved; nothing changed\"}}");
